@@ -1,1 +1,60 @@
-fn main() {}
+//! conv2d forward and forward+backward: pbdl's im2col + gemm convolution against candle's.
+//!
+//! Case: batch 8, 32 -> 32 channels, 64x64, 3x3 kernel, padding 1, f32, on the CPU. The backward
+//! computes the gradients with respect to both the input and the weight.
+//!
+//! Run with `cargo bench -p pbdl-core --bench conv`.
+
+use candle_core::{DType, Device, Tensor, Var};
+use criterion::{criterion_group, criterion_main, Criterion};
+use pbdl_core::conv::{conv2d, Conv2dParams};
+use std::hint::black_box;
+use std::time::Duration;
+
+const B: usize = 8;
+const C: usize = 32;
+const N: usize = 64;
+const K: usize = 3;
+
+fn inputs() -> (Var, Var) {
+    let dev = Device::Cpu;
+    let x = pbdl_core::seed::randn((B, C, N, N), 0.0, 1.0, DType::F32, &dev, 0).unwrap();
+    let w = pbdl_core::seed::randn((C, C, K, K), 0.0, 0.1, DType::F32, &dev, 1).unwrap();
+    (Var::from_tensor(&x).unwrap(), Var::from_tensor(&w).unwrap())
+}
+
+fn ours(x: &Tensor, w: &Tensor) -> Tensor {
+    conv2d(x, w, None, &Conv2dParams::default().padding(1)).unwrap()
+}
+
+fn candle(x: &Tensor, w: &Tensor) -> Tensor {
+    x.conv2d(w, 1, 1, 1, 1).unwrap()
+}
+
+/// Forward, then the gradients of `sum(y)` with respect to input and weight.
+fn fwd_bwd(f: fn(&Tensor, &Tensor) -> Tensor, x: &Var, w: &Var) -> (Tensor, Tensor) {
+    let grads = f(x.as_tensor(), w.as_tensor()).sum_all().unwrap().backward().unwrap();
+    (grads.get(x.as_tensor()).unwrap().clone(), grads.get(w.as_tensor()).unwrap().clone())
+}
+
+fn bench(c: &mut Criterion) {
+    let (x, w) = inputs();
+    let cases: [(&str, fn(&Tensor, &Tensor) -> Tensor); 2] = [("ours", ours), ("candle", candle)];
+
+    let mut g = c.benchmark_group("conv2d_f32_fwd");
+    g.sample_size(20).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(4));
+    for (name, f) in cases {
+        g.bench_function(name, |b| b.iter(|| black_box(f(x.as_tensor(), w.as_tensor()))));
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("conv2d_f32_fwd_bwd");
+    g.sample_size(10).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(6));
+    for (name, f) in cases {
+        g.bench_function(name, |b| b.iter(|| black_box(fwd_bwd(f, &x, &w))));
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -106,6 +106,28 @@ pub enum Error {
         /// What is wrong with it.
         reason: String,
     },
+    /// A file lacks tensors that the caller needs (e.g. a checkpoint loaded into a model).
+    #[error("{path}: missing tensors {missing:?} (the file has {available:?})")]
+    MissingTensors {
+        /// The file.
+        path: PathBuf,
+        /// The names asked for but not in the file.
+        missing: Vec<String>,
+        /// The names the file does have.
+        available: Vec<String>,
+    },
+    /// A stored tensor's shape differs from the shape the caller expects.
+    #[error("{path}: tensor `{name}` has shape {stored:?} in the file but {expected:?} in the model")]
+    TensorShape {
+        /// The file.
+        path: PathBuf,
+        /// The tensor's name.
+        name: String,
+        /// Its shape in the file.
+        stored: Vec<usize>,
+        /// The shape the caller expects.
+        expected: Vec<usize>,
+    },
     /// An error from candle.
     #[error(transparent)]
     Candle(#[from] candle_core::Error),
@@ -117,19 +139,12 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 impl Error {
     /// Shortcut for [`Error::InvalidArgument`].
     pub fn invalid(op: &'static str, arg: &'static str, reason: impl Into<String>) -> Self {
-        Error::InvalidArgument {
-            op,
-            arg,
-            reason: reason.into(),
-        }
+        Error::InvalidArgument { op, arg, reason: reason.into() }
     }
 
     /// Wraps an IO error with the path it concerns.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        Error::Io {
-            path: path.into(),
-            source,
-        }
+        Error::Io { path: path.into(), source }
     }
 }
 
@@ -143,12 +158,7 @@ impl From<Error> for candle_core::Error {
 /// Checks that `t` has exactly the shape `expected`.
 pub fn check_shape(op: &'static str, arg: &'static str, t: &Tensor, expected: &[usize]) -> Result<()> {
     if t.dims() != expected {
-        return Err(Error::Shape {
-            op,
-            arg,
-            expected: format!("{expected:?}"),
-            got: t.dims().to_vec(),
-        });
+        return Err(Error::Shape { op, arg, expected: format!("{expected:?}"), got: t.dims().to_vec() });
     }
     Ok(())
 }
@@ -156,12 +166,7 @@ pub fn check_shape(op: &'static str, arg: &'static str, t: &Tensor, expected: &[
 /// Checks that `t` has rank `rank`; `layout` describes the axes, e.g. `"[batch, channel, y, x]"`.
 pub fn check_rank(op: &'static str, arg: &'static str, t: &Tensor, rank: usize, layout: &str) -> Result<()> {
     if t.rank() != rank {
-        return Err(Error::Shape {
-            op,
-            arg,
-            expected: format!("rank {rank} {layout}"),
-            got: t.dims().to_vec(),
-        });
+        return Err(Error::Shape { op, arg, expected: format!("rank {rank} {layout}"), got: t.dims().to_vec() });
     }
     Ok(())
 }
@@ -170,12 +175,7 @@ pub fn check_rank(op: &'static str, arg: &'static str, t: &Tensor, rank: usize, 
 pub fn check_float(op: &'static str, arg: &'static str, t: &Tensor) -> Result<()> {
     match t.dtype() {
         DType::F32 | DType::F64 => Ok(()),
-        got => Err(Error::DType {
-            op,
-            arg,
-            expected: "f32 or f64",
-            got,
-        }),
+        got => Err(Error::DType { op, arg, expected: "f32 or f64", got }),
     }
 }
 
@@ -183,12 +183,7 @@ pub fn check_float(op: &'static str, arg: &'static str, t: &Tensor) -> Result<()
 pub fn check_finite(what: &str, t: &Tensor) -> Result<()> {
     let flat = t.flatten_all()?.to_dtype(DType::F64)?.to_vec1::<f64>()?;
     if let Some((index, &value)) = flat.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-        return Err(Error::NonFinite {
-            what: what.to_string(),
-            index,
-            value,
-            len: flat.len(),
-        });
+        return Err(Error::NonFinite { what: what.to_string(), index, value, len: flat.len() });
     }
     Ok(())
 }
@@ -203,7 +198,10 @@ mod tests {
         let t = Tensor::zeros((2, 3), DType::F32, &Device::Cpu).unwrap();
         let err = check_shape("conv2d", "weight", &t, &[2, 4]).unwrap_err();
         let msg = err.to_string();
-        assert!(msg.contains("conv2d") && msg.contains("weight") && msg.contains("[2, 3]") && msg.contains("[2, 4]"), "{msg}");
+        assert!(
+            msg.contains("conv2d") && msg.contains("weight") && msg.contains("[2, 3]") && msg.contains("[2, 4]"),
+            "{msg}"
+        );
     }
 
     #[test]

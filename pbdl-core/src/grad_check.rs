@@ -24,11 +24,7 @@ pub struct GradCheckOptions {
 
 impl Default for GradCheckOptions {
     fn default() -> Self {
-        Self {
-            eps: 1e-6,
-            max_probes: 48,
-            seed: 0,
-        }
+        Self { eps: 1e-6, max_probes: 48, seed: 0 }
     }
 }
 
@@ -48,7 +44,7 @@ pub struct GradCheckReport {
 impl GradCheckReport {
     /// Turns the report into an error if `max_rel_error > tolerance`.
     pub fn ensure(&self, tolerance: f64) -> Result<&Self> {
-        if !(self.max_rel_error <= tolerance) {
+        if self.max_rel_error.is_nan() || self.max_rel_error > tolerance {
             let (input, index, analytic, numeric) = self.worst;
             return Err(Error::GradCheck {
                 max_rel_error: self.max_rel_error,
@@ -78,14 +74,17 @@ where
         return Err(Error::invalid("check_grad", "eps", format!("must be a positive finite step, got {}", opts.eps)));
     }
     let cpu = Device::Cpu;
-    let base: Vec<Tensor> = inputs.iter().map(|t| t.to_device(&cpu)?.to_dtype(DType::F64)).collect::<candle_core::Result<_>>()?;
+    let base: Vec<Tensor> =
+        inputs.iter().map(|t| t.to_device(&cpu)?.to_dtype(DType::F64)).collect::<candle_core::Result<_>>()?;
 
     // Analytic gradient of sum(f(x) * r).
     let vars: Vec<Var> = base.iter().map(Var::from_tensor).collect::<candle_core::Result<_>>()?;
     let var_tensors: Vec<Tensor> = vars.iter().map(|v| v.as_tensor().clone()).collect();
     let out = f(&var_tensors)?.to_dtype(DType::F64)?;
     let cotangent = seed::rand_uniform(out.shape(), -1.0, 1.0, DType::F64, &cpu, opts.seed)?;
-    let loss = |t: &Tensor| -> candle_core::Result<f64> { t.to_dtype(DType::F64)?.mul(&cotangent)?.sum_all()?.to_scalar::<f64>() };
+    let loss = |t: &Tensor| -> candle_core::Result<f64> {
+        t.to_dtype(DType::F64)?.mul(&cotangent)?.sum_all()?.to_scalar::<f64>()
+    };
     let grads = out.to_dtype(DType::F64)?.mul(&cotangent)?.sum_all()?.backward()?;
     let missing: Vec<String> = vars
         .iter()
@@ -150,12 +149,7 @@ where
         per_input.push(err);
     }
     let max_rel_error = per_input.iter().cloned().fold(0.0, f64::max);
-    Ok(GradCheckReport {
-        max_rel_error,
-        per_input,
-        probes,
-        worst,
-    })
+    Ok(GradCheckReport { max_rel_error, per_input, probes, worst })
 }
 
 /// Checks that every variable in `named` received a gradient in `grads`; lists those that did not.
@@ -163,11 +157,8 @@ where
 /// Use it after the first `backward()` of a training loop: an op without backward on a
 /// parameter's path shows up here instead of as a parameter that silently never trains.
 pub fn assert_all_have_grads<'a>(named: impl IntoIterator<Item = (&'a str, &'a Var)>, grads: &GradStore) -> Result<()> {
-    let missing: Vec<String> = named
-        .into_iter()
-        .filter(|(_, v)| grads.get(v.as_tensor()).is_none())
-        .map(|(n, _)| n.to_string())
-        .collect();
+    let missing: Vec<String> =
+        named.into_iter().filter(|(_, v)| grads.get(v.as_tensor()).is_none()).map(|(n, _)| n.to_string()).collect();
     if missing.is_empty() {
         Ok(())
     } else {

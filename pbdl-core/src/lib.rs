@@ -10,17 +10,35 @@
 //! | [`op`] | a toolkit for differentiable candle custom ops (forward + backward in one place) |
 //! | [`grad_check`] | [`check_grad`] (central finite differences) and gradient-presence checks |
 //! | [`seed`] | seeded random tensors: same seed, same numbers |
+//! | [`mod@bench`] | the shared benchmark schema (time next to error) and its JSON/markdown/PNG report |
+//! | [`registry`] | how each crate contributes tour, bench and stress entries to xtask; [`tasks`] lists this crate's |
+//! | [`conv`] | fast differentiable conv1d/2d/3d (im2col + gemm): stride, dilation, groups, zero or circular padding; layers |
+//! | [`nn`] | layer/group/RMS norm, softmax and activations that train (candle's fused ones have no backward) |
+//! | [`train`] | optimisers (Adam/AdamW/SGD+momentum) from serde configs, lr schedules, gradient clipping, CSV/JSON scalar logs, progress bar, divergence guard |
+//! | [`sample`] | differentiable bilinear/trilinear sampling at points and warping (clamped or periodic), resize (nearest, bilinear, bicubic) |
+//! | [`io`] | atomic writes, checkpoints (safetensors + JSON sidecar, resume from the latest), `.npy`/`.npz` with typed errors |
+//! | [`viz`] | colormaps (viridis, blue-white-red), field and quiver PNGs (y up), rollout GIFs, line and Pareto plots with a bundled font |
 //!
 //! Conventions: tensors are candle `Tensor`s laid out `[batch, channel, (z,) y, x]` with x
 //! fastest; `f32` by default, `f64` where an accuracy test needs it.
 #![warn(missing_docs)]
 
+pub mod bench;
+pub mod conv;
+mod entries;
 pub mod error;
 pub mod grad_check;
+pub mod io;
+pub mod nn;
 pub mod op;
 pub mod real;
+pub mod sample;
 pub mod seed;
+pub mod viz;
+pub mod registry;
+pub mod train;
 
 pub use error::{Error, Result};
 pub use grad_check::{assert_all_have_grads, assert_varmap_has_grads, check_grad, GradCheckOptions, GradCheckReport};
+pub use entries::tasks;
 pub use real::Real;

@@ -69,7 +69,14 @@ pub trait Kernel2: Send + Sync + 'static {
     /// Shape of the output; reject bad shapes here.
     fn output_shape(&self, a: &Shape, b: &Shape) -> candle_core::Result<Shape>;
     /// Fills `output` from the dense inputs.
-    fn forward<T: Real>(&self, a: &[T], a_shape: &Shape, b: &[T], b_shape: &Shape, output: &mut [T]) -> candle_core::Result<()>;
+    fn forward<T: Real>(
+        &self,
+        a: &[T],
+        a_shape: &Shape,
+        b: &[T],
+        b_shape: &Shape,
+        output: &mut [T],
+    ) -> candle_core::Result<()>;
 }
 
 /// A differentiable two-input op. `backward` returns a gradient for both inputs; an input that
@@ -102,7 +109,14 @@ pub trait Kernel3: Send + Sync + 'static {
 /// A differentiable three-input op.
 pub trait Op3: Kernel3 {
     /// Gradients with respect to `a`, `b` and `c`.
-    fn backward(&self, a: &Tensor, b: &Tensor, c: &Tensor, y: &Tensor, grad_y: &Tensor) -> candle_core::Result<(Tensor, Tensor, Tensor)>;
+    fn backward(
+        &self,
+        a: &Tensor,
+        b: &Tensor,
+        c: &Tensor,
+        y: &Tensor,
+        grad_y: &Tensor,
+    ) -> candle_core::Result<(Tensor, Tensor, Tensor)>;
 }
 
 /// Applies a differentiable one-input op.
@@ -174,13 +188,8 @@ fn gather_strided<T: Copy>(all: &[T], layout: &Layout) -> Vec<T> {
 }
 
 fn unsupported(op: &'static str, dtype: DType) -> candle_core::Error {
-    crate::Error::DType {
-        op,
-        arg: "input",
-        expected: "f32 or f64 (all inputs of one op share a dtype)",
-        got: dtype,
-    }
-    .into()
+    crate::Error::DType { op, arg: "input", expected: "f32 or f64 (all inputs of one op share a dtype)", got: dtype }
+        .into()
 }
 
 fn run1<K: Kernel1, T: Real>(k: &K, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
@@ -191,7 +200,13 @@ fn run1<K: Kernel1, T: Real>(k: &K, s: &CpuStorage, l: &Layout) -> candle_core::
     Ok((T::to_cpu_storage_owned(out), out_shape))
 }
 
-fn run2<K: Kernel2, T: Real>(k: &K, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+fn run2<K: Kernel2, T: Real>(
+    k: &K,
+    s1: &CpuStorage,
+    l1: &Layout,
+    s2: &CpuStorage,
+    l2: &Layout,
+) -> candle_core::Result<(CpuStorage, Shape)> {
     let out_shape = k.output_shape(l1.shape(), l2.shape())?;
     let a = dense::<T>(s1, l1)?;
     let b = dense::<T>(s2, l2)?;
@@ -227,7 +242,13 @@ fn fwd1<K: Kernel1>(k: &K, s: &CpuStorage, l: &Layout) -> candle_core::Result<(C
     }
 }
 
-fn fwd2<K: Kernel2>(k: &K, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+fn fwd2<K: Kernel2>(
+    k: &K,
+    s1: &CpuStorage,
+    l1: &Layout,
+    s2: &CpuStorage,
+    l2: &Layout,
+) -> candle_core::Result<(CpuStorage, Shape)> {
     match (s1, s2) {
         (CpuStorage::F32(_), CpuStorage::F32(_)) => run2::<K, f32>(k, s1, l1, s2, l2),
         (CpuStorage::F64(_), CpuStorage::F64(_)) => run2::<K, f64>(k, s1, l1, s2, l2),
@@ -290,10 +311,22 @@ impl<K: Op2> CustomOp2 for WithGrad<K> {
     fn name(&self) -> &'static str {
         self.0.name()
     }
-    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
         fwd2(&self.0, s1, l1, s2, l2)
     }
-    fn bwd(&self, a: &Tensor, b: &Tensor, y: &Tensor, gy: &Tensor) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
+    fn bwd(
+        &self,
+        a: &Tensor,
+        b: &Tensor,
+        y: &Tensor,
+        gy: &Tensor,
+    ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
         let (ga, gb) = self.0.backward(a, b, y, gy)?;
         Ok((Some(ga), Some(gb)))
     }
@@ -303,7 +336,13 @@ impl<K: Kernel2> CustomOp2 for NoGrad<K> {
     fn name(&self) -> &'static str {
         self.0.name()
     }
-    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
         fwd2(&self.0, s1, l1, s2, l2)
     }
 }

@@ -13,7 +13,14 @@ pub fn rng(seed: u64) -> StdRng {
 }
 
 /// Standard-normal samples (mean `mean`, standard deviation `std`) of the given shape.
-pub fn randn(shape: impl Into<Shape>, mean: f64, std: f64, dtype: DType, device: &Device, seed: u64) -> candle_core::Result<Tensor> {
+pub fn randn(
+    shape: impl Into<Shape>,
+    mean: f64,
+    std: f64,
+    dtype: DType,
+    device: &Device,
+    seed: u64,
+) -> candle_core::Result<Tensor> {
     let shape = shape.into();
     let mut r = rng(seed);
     let data: Vec<f64> = (0..shape.elem_count())
@@ -26,7 +33,14 @@ pub fn randn(shape: impl Into<Shape>, mean: f64, std: f64, dtype: DType, device:
 }
 
 /// Uniform samples in `[lo, hi)` of the given shape.
-pub fn rand_uniform(shape: impl Into<Shape>, lo: f64, hi: f64, dtype: DType, device: &Device, seed: u64) -> candle_core::Result<Tensor> {
+pub fn rand_uniform(
+    shape: impl Into<Shape>,
+    lo: f64,
+    hi: f64,
+    dtype: DType,
+    device: &Device,
+    seed: u64,
+) -> candle_core::Result<Tensor> {
     let shape = shape.into();
     let mut r = rng(seed);
     let data: Vec<f64> = (0..shape.elem_count()).map(|_| r.random_range(lo..hi)).collect();

@@ -1,0 +1,200 @@
+//! The shared benchmark schema: run time next to error, one row per measurement.
+//!
+//! Every `cargo xtask bench <crate>` entry produces [`BenchRow`]s; [`BenchReport::write`] stores
+//! them as `target/pbdl/bench/<crate>.json` in this schema:
+//!
+//! ```text
+//! {"rows": [{"case": str, "method": str, "size": str, "seconds": f64 (median per unit),
+//!            "unit": str, "error": f64|null, "error_kind": str, "peer": bool, "threads": int}]}
+//! ```
+//!
+//! plus a markdown table beside it. Peers (PhiFlow, JAX-CFD, candle, PyTorch, ...) use the same
+//! rows with `peer = true`, so one plot can show everybody's time against error.
+
+use crate::{io::write_atomic, Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::io::Write as _;
+use std::time::Instant;
+
+/// One measurement: the median time of one unit of work and the error it reached.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BenchRow {
+    /// The problem, e.g. `"taylor_green"` or `"conv2d_f32_fwd_bwd"`.
+    pub case: String,
+    /// Who solved it, e.g. `"pbdl"`, `"candle"`, `"jax_cfd_fv"`.
+    pub method: String,
+    /// Problem size, e.g. `"64x64"` or `"b8_c32_64x64_k3"`.
+    pub size: String,
+    /// Median wall-clock seconds per unit.
+    pub seconds: f64,
+    /// What one unit is: `"step"`, `"call"`, `"rollout"`, ...
+    pub unit: String,
+    /// The error reached, if the case has a reference.
+    pub error: Option<f64>,
+    /// What `error` measures, e.g. `"rel_l2_vs_analytic"`; empty when `error` is `None`.
+    pub error_kind: String,
+    /// `true` for other libraries measured for comparison.
+    pub peer: bool,
+    /// Number of threads the measurement ran with.
+    pub threads: usize,
+}
+
+/// A set of rows, as stored in `target/pbdl/bench/<crate>.json`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct BenchReport {
+    /// The measurements.
+    pub rows: Vec<BenchRow>,
+}
+
+/// Measures the median seconds of `f` over `reps` runs after `warmup` unmeasured runs.
+pub fn median_seconds<F: FnMut() -> R, R>(warmup: usize, reps: usize, mut f: F) -> f64 {
+    for _ in 0..warmup {
+        std::hint::black_box(f());
+    }
+    let mut times: Vec<f64> = (0..reps.max(1))
+        .map(|_| {
+            let t = Instant::now();
+            std::hint::black_box(f());
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    times.sort_by(|a, b| a.total_cmp(b));
+    let n = times.len();
+    if n % 2 == 1 {
+        times[n / 2]
+    } else {
+        0.5 * (times[n / 2 - 1] + times[n / 2])
+    }
+}
+
+impl BenchReport {
+    /// Reads a report written by [`BenchReport::write`].
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        serde_json::from_str(&text)
+            .map_err(|e| Error::Format { path: path.to_path_buf(), reason: format!("not a pbdl bench report: {e}") })
+    }
+
+    /// Writes `<dir>/<name>.json` and `<dir>/<name>.md` atomically; returns both paths.
+    pub fn write(&self, dir: &Path, name: &str) -> Result<Vec<PathBuf>> {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        let json_path = dir.join(format!("{name}.json"));
+        let json = serde_json::to_string_pretty(self).expect("bench rows serialise");
+        write_atomic(&json_path, |w| w.write_all(json.as_bytes()))?;
+        let md_path = dir.join(format!("{name}.md"));
+        let md = self.markdown();
+        write_atomic(&md_path, |w| w.write_all(md.as_bytes()))?;
+        Ok(vec![json_path, md_path])
+    }
+
+    /// The rows as a markdown table.
+    pub fn markdown(&self) -> String {
+        let mut s = String::from(
+            "| case | method | size | median time | unit | error | error kind | peer | threads |\n|---|---|---|---:|---|---:|---|---|---:|\n",
+        );
+        for r in &self.rows {
+            let err = r.error.map(|e| format!("{e:.3e}")).unwrap_or_else(|| "-".into());
+            s.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+                r.case,
+                r.method,
+                r.size,
+                format_seconds(r.seconds),
+                r.unit,
+                err,
+                r.error_kind,
+                if r.peer { "yes" } else { "no" },
+                r.threads
+            ));
+        }
+        s
+    }
+}
+
+/// Formats seconds with a readable unit (s, ms, us).
+pub fn format_seconds(s: f64) -> String {
+    if s >= 1.0 {
+        format!("{s:.3} s")
+    } else if s >= 1e-3 {
+        format!("{:.3} ms", s * 1e3)
+    } else {
+        format!("{:.2} us", s * 1e6)
+    }
+}
+
+/// Draws the rows that have an error as a time-against-error (Pareto) plot, one colour per
+/// `case/method`, and writes it to `path`. Rows without an error are listed in the markdown
+/// table only. Returns `path`.
+pub fn plot_report(report: &BenchReport, path: &Path, title: &str) -> Result<PathBuf> {
+    use crate::viz::{pareto_plot, ParetoPoint, PlotStyle};
+    let points: Vec<ParetoPoint> = report
+        .rows
+        .iter()
+        .filter_map(|r| {
+            let e = r.error.filter(|e| e.is_finite() && *e > 0.0)?;
+            (r.seconds > 0.0).then(|| ParetoPoint::new(format!("{} / {}", r.case, r.method), r.seconds, e).with_label(r.size.clone()))
+        })
+        .collect();
+    if points.is_empty() {
+        // Nothing to plot against error: draw times per case instead so the file still shows the run.
+        let series: Vec<crate::viz::Series> = report
+            .rows
+            .iter()
+            .enumerate()
+            .map(|(i, r)| crate::viz::Series::new(format!("{} / {} ({})", r.case, r.method, r.size), vec![i as f64, i as f64 + 0.5], vec![r.seconds, r.seconds]))
+            .collect();
+        if series.is_empty() {
+            return Err(Error::invalid("plot_report", "report", "no rows to plot"));
+        }
+        let style = PlotStyle { title: format!("{title}: median time per unit"), y_label: "seconds".into(), log_y: true, ..Default::default() };
+        crate::viz::line_plot(path, &series, &style)?;
+    } else {
+        let style = PlotStyle { title: format!("{title}: time vs error"), x_label: "median seconds per unit".into(), ..PlotStyle::pareto() };
+        pareto_plot(path, &points, &style)?;
+    }
+    Ok(path.to_path_buf())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn report_round_trips_in_the_shared_schema() {
+        let dir = tempfile::tempdir().unwrap();
+        let report = BenchReport {
+            rows: vec![BenchRow {
+                case: "taylor_green".into(),
+                method: "pbdl".into(),
+                size: "64x64".into(),
+                seconds: 2.5e-4,
+                unit: "step".into(),
+                error: Some(1.2e-5),
+                error_kind: "rel_l2_vs_analytic".into(),
+                peer: false,
+                threads: 2,
+            }],
+        };
+        let paths = report.write(dir.path(), "grid").unwrap();
+        assert_eq!(BenchReport::read(&paths[0]).unwrap(), report);
+        // The schema's field names are a contract with other tools: check them literally.
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&paths[0]).unwrap()).unwrap();
+        let row = &v["rows"][0];
+        for key in ["case", "method", "size", "seconds", "unit", "error", "error_kind", "peer", "threads"] {
+            assert!(row.get(key).is_some(), "missing key {key}");
+        }
+        assert!(std::fs::read_to_string(&paths[1]).unwrap().contains("250.00 us"));
+    }
+
+    #[test]
+    fn median_of_runs() {
+        let mut k = 0;
+        let m = median_seconds(1, 5, || {
+            k += 1;
+            k
+        });
+        assert!(m >= 0.0);
+        assert_eq!(k, 6);
+    }
+}

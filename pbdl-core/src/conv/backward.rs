@@ -1,0 +1,170 @@
+//! The two adjoints of a convolution, each a differentiable op itself:
+//!
+//! * `grad_input(gy, w)`: the gradient with respect to the input, a transposed convolution
+//!   (`W^T gy` per tile, then col2im);
+//! * `grad_weight(x, gy)`: the gradient with respect to the weight, `sum_b gy_b col(x_b)^T`.
+//!
+//! Both are bilinear, and with `conv` they form a closed family under differentiation:
+//! `<ggx, grad_input(gy, w)> = <conv(ggx, w), gy>` and
+//! `<ggw, grad_weight(x, gy)> = <conv(x, ggw), gy>`, so second derivatives come for free.
+
+use super::forward::{conv_tensor, zeros_like};
+use super::geometry::{expect_shape, Geometry};
+use super::im2col::Plan;
+use super::matmul::{matmul, split, Mat};
+use crate::op::{apply2, Kernel2, Op2};
+use crate::Real;
+use candle_core::{Shape, Tensor};
+use rayon::prelude::*;
+
+/// `gx = grad_input(gy, w)` on dense buffers; `gx` must be zero on entry.
+///
+/// Each (image, group) unit owns a contiguous block of `gx`, so units run in parallel; the
+/// tiles of one unit overlap in `gx` and run one after the other.
+pub(crate) fn conv_grad_input<T: Real>(g: &Geometry, gy: &[T], w: &[T], gx: &mut [T]) {
+    let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
+    let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);
+    let units = g.batch * g.groups;
+    let unit_len = cin_g * in_len;
+    if units == 0 || unit_len == 0 {
+        return;
+    }
+    let plan = Plan::new(g);
+    let pointwise = g.pointwise();
+    let (chunks, par) = split(units);
+    let per = units.div_ceil(chunks);
+    gx.par_chunks_mut(per * unit_len).enumerate().for_each(|(ci, gxs)| {
+        let mut col = if pointwise { Vec::new() } else { vec![T::zero(); plan.tile_len()] };
+        for (j, gxu) in gxs.chunks_mut(unit_len).enumerate() {
+            let u = ci * per + j;
+            let (b, grp) = (u / g.groups, u % g.groups);
+            let gyg = &gy[(b * g.c_out + grp * cout_g) * out_len..][..cout_g * out_len];
+            // W_g^T: element (tap, o) of the group's [cout_g, kg] block.
+            let wt = Mat { data: &w[grp * cout_g * kg..][..cout_g * kg], rs: 1, cs: kg };
+            for lines in plan.tiles() {
+                let (off, n) = (lines.start * ow, lines.len() * ow);
+                let gy_tile = Mat { data: &gyg[off..], rs: out_len, cs: 1 };
+                if pointwise {
+                    matmul(&mut gxu[off..], in_len, false, wt, gy_tile, (kg, n, cout_g), par);
+                } else {
+                    matmul(&mut col, n, false, wt, gy_tile, (kg, n, cout_g), par);
+                    plan.col2im(&col, &lines, gxu);
+                }
+            }
+        }
+    });
+}
+
+/// `gw = grad_weight(x, gy)` on dense buffers; `gw` is overwritten.
+///
+/// Units are split into one contiguous range per thread; each range sums into its own
+/// accumulator and the accumulators are added in order, so the result does not depend on
+/// scheduling.
+pub(crate) fn conv_grad_weight<T: Real>(g: &Geometry, x: &[T], gy: &[T], gw: &mut [T]) {
+    let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
+    let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);
+    let units = g.batch * g.groups;
+    gw.fill(T::zero());
+    if units == 0 || gw.is_empty() {
+        return;
+    }
+    let plan = Plan::new(g);
+    let pointwise = g.pointwise();
+    let (chunks, par) = split(units);
+    let per = units.div_ceil(chunks);
+    let partials: Vec<Vec<T>> = (0..chunks)
+        .into_par_iter()
+        .map(|ci| {
+            let mut acc = vec![T::zero(); gw.len()];
+            let mut col = if pointwise { Vec::new() } else { vec![T::zero(); plan.tile_len()] };
+            for u in ci * per..((ci + 1) * per).min(units) {
+                let (b, grp) = (u / g.groups, u % g.groups);
+                let xg = &x[(b * g.c_in + grp * cin_g) * in_len..][..cin_g * in_len];
+                let gyg = &gy[(b * g.c_out + grp * cout_g) * out_len..][..cout_g * out_len];
+                let gwg = &mut acc[grp * cout_g * kg..][..cout_g * kg];
+                for lines in plan.tiles() {
+                    let (off, n) = (lines.start * ow, lines.len() * ow);
+                    // col^T: element (position, tap).
+                    let col_t = if pointwise {
+                        Mat { data: &xg[off..], rs: 1, cs: in_len }
+                    } else {
+                        plan.im2col(xg, &lines, &mut col);
+                        Mat { data: &col, rs: 1, cs: n }
+                    };
+                    let gy_tile = Mat { data: &gyg[off..], rs: out_len, cs: 1 };
+                    matmul(gwg, kg, true, gy_tile, col_t, (cout_g, kg, n), par);
+                }
+            }
+            acc
+        })
+        .collect();
+    for p in partials {
+        gw.iter_mut().zip(&p).for_each(|(a, &b)| *a += b);
+    }
+}
+
+/// The differentiable op `gx = grad_input(gy, w)` on tensors.
+pub(crate) struct ConvGradInput(pub Geometry);
+
+impl Kernel2 for ConvGradInput {
+    fn name(&self) -> &'static str {
+        "conv_grad_input"
+    }
+
+    fn output_shape(&self, gy: &Shape, w: &Shape) -> candle_core::Result<Shape> {
+        expect_shape("conv_grad_input", "grad_output", gy.dims(), &self.0.y_shape())?;
+        expect_shape("conv_grad_input", "weight", w.dims(), &self.0.w_shape())?;
+        Ok(Shape::from(self.0.x_shape()))
+    }
+
+    fn forward<T: Real>(&self, gy: &[T], _: &Shape, w: &[T], _: &Shape, gx: &mut [T]) -> candle_core::Result<()> {
+        conv_grad_input(&self.0, gy, w, gx);
+        Ok(())
+    }
+}
+
+impl Op2 for ConvGradInput {
+    fn backward(&self, gy: &Tensor, w: &Tensor, _gx: &Tensor, ggx: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
+        let d_gy = if gy.track_op() { conv_tensor(&self.0, ggx, w)? } else { zeros_like(gy)? };
+        let d_w = if w.track_op() { grad_weight_tensor(&self.0, ggx, gy)? } else { zeros_like(w)? };
+        Ok((d_gy, d_w))
+    }
+}
+
+/// The differentiable op `gw = grad_weight(x, gy)` on tensors.
+pub(crate) struct ConvGradWeight(pub Geometry);
+
+impl Kernel2 for ConvGradWeight {
+    fn name(&self) -> &'static str {
+        "conv_grad_weight"
+    }
+
+    fn output_shape(&self, x: &Shape, gy: &Shape) -> candle_core::Result<Shape> {
+        expect_shape("conv_grad_weight", "input", x.dims(), &self.0.x_shape())?;
+        expect_shape("conv_grad_weight", "grad_output", gy.dims(), &self.0.y_shape())?;
+        Ok(Shape::from(self.0.w_shape()))
+    }
+
+    fn forward<T: Real>(&self, x: &[T], _: &Shape, gy: &[T], _: &Shape, gw: &mut [T]) -> candle_core::Result<()> {
+        conv_grad_weight(&self.0, x, gy, gw);
+        Ok(())
+    }
+}
+
+impl Op2 for ConvGradWeight {
+    fn backward(&self, x: &Tensor, gy: &Tensor, _gw: &Tensor, ggw: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
+        let d_x = if x.track_op() { grad_input_tensor(&self.0, gy, ggw)? } else { zeros_like(x)? };
+        let d_gy = if gy.track_op() { conv_tensor(&self.0, x, ggw)? } else { zeros_like(gy)? };
+        Ok((d_x, d_gy))
+    }
+}
+
+/// `grad_input(gy, w)` on tensors of geometry `g`.
+pub(crate) fn grad_input_tensor(g: &Geometry, gy: &Tensor, w: &Tensor) -> candle_core::Result<Tensor> {
+    apply2(gy, w, ConvGradInput(*g))
+}
+
+/// `grad_weight(x, gy)` on tensors of geometry `g`.
+pub(crate) fn grad_weight_tensor(g: &Geometry, x: &Tensor, gy: &Tensor) -> candle_core::Result<Tensor> {
+    apply2(x, gy, ConvGradWeight(*g))
+}

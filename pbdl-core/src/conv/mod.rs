@@ -1,0 +1,141 @@
+//! Fast differentiable convolution in 1D, 2D and 3D, with zero or periodic padding.
+//!
+//! Layouts follow PyTorch: inputs `[batch, channel, (z,) y, x]`, weights
+//! `[out_channels, in_channels / groups, (kz,) ky, kx]`, an optional bias `[out_channels]`.
+//! The output size along an axis of input size `n`, kernel size `k`, padding `p`, dilation `d`
+//! and stride `s` is `(n + 2p - d(k - 1) - 1) / s + 1` (rounded down).
+//!
+//! Every convolution runs as a 3D one (1D and 2D get singleton axes): the input is gathered
+//! tile by tile into an im2col matrix and multiplied with the weight by the `gemm` crate, in
+//! parallel over images and channel groups. The gradients with respect to the input (a
+//! transposed convolution, via col2im) and the weight are ops of their own and are
+//! differentiable again, so the result works with candle's autograd to any order.
+//!
+//! Compared with candle's `conv1d`/`conv2d` this adds conv3d, circular padding, per-axis
+//! stride/padding/dilation, and a faster backward pass.
+//!
+//! ```
+//! use candle_core::{DType, Device, Tensor, Var};
+//! use pbdl_core::conv::{conv2d, Conv2dParams};
+//!
+//! let dev = Device::Cpu;
+//! let x = Var::randn(0f32, 1.0, (2, 3, 16, 16), &dev)?; // [batch, channel, y, x]
+//! let w = Var::randn(0f32, 0.1, (8, 3, 3, 3), &dev)?; // [out, in, ky, kx]
+//! let b = Tensor::zeros(8, DType::F32, &dev)?;
+//! // Periodic boundaries, output size equal to the input size.
+//! let p = Conv2dParams::default().padding(1).circular();
+//! let y = conv2d(&x, &w, Some(&b), &p)?;
+//! assert_eq!(y.dims(), &[2, 8, 16, 16]);
+//! let grads = y.sqr()?.sum_all()?.backward()?;
+//! assert_eq!(grads.get(&w).unwrap().dims(), &[8, 3, 3, 3]);
+//! # Ok::<(), pbdl_core::Error>(())
+//! ```
+
+mod backward;
+mod forward;
+mod geometry;
+mod im2col;
+mod layer;
+mod matmul;
+mod params;
+
+pub use layer::{Conv, Conv1d, Conv2d, Conv3d, ConvLayerConfig};
+pub use params::{Conv1dParams, Conv2dParams, Conv3dParams, ConvParams, PaddingMode};
+
+use crate::error::check_float;
+use crate::{Error, Result};
+use candle_core::Tensor;
+use geometry::Geometry;
+
+/// `N`-dimensional convolution (`N` = 1, 2 or 3) of `x` with `weight`, plus `bias` per output
+/// channel; [`conv1d`], [`conv2d`] and [`conv3d`] are this with a fixed `N`.
+///
+/// Shapes: `x` is `[batch, in_channels, spatial...]` (`N` spatial axes), `weight` is
+/// `[out_channels, in_channels / groups, kernel...]`, `bias` is `[out_channels]`. All three must
+/// be `f32` or `f64` of one dtype, on the CPU. Gradients flow to all three.
+///
+/// # Errors
+/// [`Error::Shape`] for wrong ranks, channel counts or bias length; [`Error::InvalidArgument`]
+/// for a zero stride or dilation, groups that do not divide the channels, or a kernel larger
+/// than the padded input; [`Error::DType`] for other or mixed dtypes.
+pub fn conv<const N: usize>(
+    x: &Tensor,
+    weight: &Tensor,
+    bias: Option<&Tensor>,
+    params: &ConvParams<N>,
+) -> Result<Tensor> {
+    const OP: &str = "conv";
+    let geo = Geometry::new(OP, x.dims(), weight.dims(), params)?;
+    check_float(OP, "input", x)?;
+    check_float(OP, "weight", weight)?;
+    if weight.dtype() != x.dtype() {
+        return Err(Error::DType {
+            op: OP,
+            arg: "weight",
+            expected: "the dtype of `input` (convert one with `.to_dtype(..)`)",
+            got: weight.dtype(),
+        });
+    }
+    if let Some(b) = bias {
+        if b.dims() != [geo.c_out] {
+            return Err(Error::Shape {
+                op: OP,
+                arg: "bias",
+                expected: format!("[{}] (one entry per output channel, weight dim 0)", geo.c_out),
+                got: b.dims().to_vec(),
+            });
+        }
+        if b.dtype() != x.dtype() {
+            return Err(Error::DType {
+                op: OP,
+                arg: "bias",
+                expected: "the dtype of `input` (convert one with `.to_dtype(..)`)",
+                got: b.dtype(),
+            });
+        }
+    }
+    let y = forward::conv_tensor(&geo, x, weight)?;
+    Ok(match bias {
+        None => y,
+        Some(b) => {
+            let mut shape = vec![1; N + 2];
+            shape[1] = geo.c_out;
+            y.broadcast_add(&b.reshape(shape)?)?
+        }
+    })
+}
+
+/// 1D convolution: `x` `[batch, in_channels, x]`, `weight` `[out_channels, in_channels / groups, kx]`.
+/// See [`conv`] for shapes and errors.
+pub fn conv1d(x: &Tensor, weight: &Tensor, bias: Option<&Tensor>, params: &Conv1dParams) -> Result<Tensor> {
+    conv(x, weight, bias, params)
+}
+
+/// 2D convolution: `x` `[batch, in_channels, y, x]`, `weight`
+/// `[out_channels, in_channels / groups, ky, kx]`. See [`conv`] for shapes and errors.
+pub fn conv2d(x: &Tensor, weight: &Tensor, bias: Option<&Tensor>, params: &Conv2dParams) -> Result<Tensor> {
+    conv(x, weight, bias, params)
+}
+
+/// 3D convolution: `x` `[batch, in_channels, z, y, x]`, `weight`
+/// `[out_channels, in_channels / groups, kz, ky, kx]`. See [`conv`] for shapes and errors.
+pub fn conv3d(x: &Tensor, weight: &Tensor, bias: Option<&Tensor>, params: &Conv3dParams) -> Result<Tensor> {
+    conv(x, weight, bias, params)
+}
+
+/// Output spatial size of an `N`-dimensional convolution of an input with spatial size `input`
+/// and a kernel of size `kernel`, or the error [`conv`] would return.
+pub fn output_size<const N: usize>(
+    input: [usize; N],
+    kernel: [usize; N],
+    params: &ConvParams<N>,
+) -> Result<[usize; N]> {
+    let mut x = vec![1, params.groups.max(1)];
+    x.extend_from_slice(&input);
+    let mut w = vec![params.groups.max(1), 1];
+    w.extend_from_slice(&kernel);
+    let geo = Geometry::new("conv::output_size", &x, &w, params)?;
+    let mut out = [0; N];
+    out.copy_from_slice(&geo.output[3 - N..]);
+    Ok(out)
+}

@@ -1,0 +1,47 @@
+//! Normalisation layers, softmax and activations that train: every one has a backward.
+//!
+//! candle 0.11 has fast fused kernels for `softmax_last_dim`, `layer_norm` and `rms_norm`
+//! (and its `LayerNorm` / `RmsNorm` modules use them on contiguous input), but those kernels
+//! have **no backward**: `loss.backward()` succeeds and the gradients of the input, the weight
+//! and the bias are silently missing. The functions here are composed from differentiable
+//! candle ops instead, so they work in training paths; each is checked against central finite
+//! differences in `f64` (`tests/nn_tests.rs`).
+//!
+//! | function | normalises / maps | module |
+//! |---|---|---|
+//! | [`layer_norm`] | over the trailing `normalized_shape` dims, `(x - mean) / sqrt(var + eps)` | [`LayerNorm`] |
+//! | [`group_norm`] | `[batch, channel, ..]` over each group of channels and all spatial dims | [`GroupNorm`] |
+//! | [`rms_norm`] | over the trailing dims, `x / sqrt(mean(x^2) + eps)` | [`RmsNorm`] |
+//! | [`softmax`], [`log_softmax`] | over one chosen dim, shifted by the (detached) max for stability | |
+//! | [`activation`] | `relu`, `gelu`, `gelu_erf`, `silu`, `elu`, `leaky_relu`, `sigmoid`, `softplus`, `mish`, ... | [`Activation`] |
+//!
+//! The variance is the biased one (divide by `n`), as in PyTorch. Half-precision inputs are
+//! normalised in `f32` and cast back.
+//!
+//! ```
+//! use candle_core::{DType, Device, Module, Tensor};
+//! use candle_nn::{VarBuilder, VarMap};
+//! use pbdl_core::nn::{softmax, GroupNorm, GroupNormConfig};
+//!
+//! let dev = Device::Cpu;
+//! let varmap = VarMap::new();
+//! let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
+//! let norm = GroupNorm::new(2, 4, GroupNormConfig::default(), vb.pp("norm"))?;
+//! let x = pbdl_core::seed::randn((3, 4, 8, 8), 0.0, 2.0, DType::F32, &dev, 0)?;
+//! let y = norm.forward(&x)?;
+//!
+//! // Every parameter gets a gradient (candle_nn::LayerNorm's weight would not).
+//! let grads = softmax(&y.flatten_from(1)?, 1)?.sqr()?.sum_all()?.backward()?;
+//! pbdl_core::assert_varmap_has_grads(&varmap, &grads)?;
+//! # Ok::<(), pbdl_core::Error>(())
+//! ```
+
+pub mod activation;
+mod layers;
+mod norm;
+mod softmax;
+
+pub use activation::Activation;
+pub use layers::{GroupNorm, GroupNormConfig, LayerNorm, LayerNormConfig, RmsNorm, RmsNormConfig};
+pub use norm::{group_norm, layer_norm, rms_norm};
+pub use softmax::{log_softmax, softmax};

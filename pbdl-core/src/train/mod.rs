@@ -1,0 +1,65 @@
+//! Training utilities: optimisers, learning-rate schedules, gradient clipping, scalar logs,
+//! a progress bar and a divergence guard.
+//!
+//! | file | gives you |
+//! |---|---|
+//! | [`optim`] | [`OptimizerConfig`] (serde: Adam, AdamW, SGD with momentum) building an [`Optim`] |
+//! | [`schedule`] | [`ScheduleConfig`] (constant, step decay, cosine + warmup, reduce-on-plateau) and [`LrScheduler`] |
+//! | [`clip`] | [`clip_grad_norm`] (returns the pre-clip norm), [`clip_grad_value`], [`ClipConfig`] |
+//! | [`log`] | [`ScalarLog`]: CSV / JSON lines / JSON array, written through without losing rows |
+//! | [`progress`] | [`Progress`]: an indicatif bar, hidden in CI and when stdout is not a terminal |
+//! | [`guard`] | [`NanGuard`]: `Error::Diverged` at the first non-finite loss or gradient norm |
+//! | [`step`] | [`train_step`]: backward, clip, guard, update in one call |
+//!
+//! A complete loop (the optimiser and schedule come from serde configs, as in a run file):
+//!
+//! ```
+//! use candle_core::{DType, Device, Module, Tensor};
+//! use candle_nn::{VarBuilder, VarMap};
+//! use pbdl_core::train::*;
+//!
+//! let dev = Device::Cpu;
+//! let varmap = VarMap::new();
+//! let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
+//! // Zero-initialised (candle's random init cannot be seeded on the CPU).
+//! let w = vb.get_with_hints((1, 1), "fit.weight", candle_nn::Init::Const(0.0))?;
+//! let b = vb.get_with_hints(1, "fit.bias", candle_nn::Init::Const(0.0))?;
+//! let model = candle_nn::Linear::new(w, Some(b));
+//! let x = Tensor::new(&[[0.0f32], [1.0], [2.0], [3.0]], &dev)?;
+//! let y = ((&x * 2.0)? + 1.0)?; // fit y = 2x + 1
+//!
+//! let opt_cfg: OptimizerConfig = serde_json::from_str(r#"{"kind": "adam", "lr": 0.1}"#).unwrap();
+//! let sched_cfg: ScheduleConfig = serde_json::from_str(r#"{"kind": "cosine", "total_steps": 300}"#).unwrap();
+//! let vars = varmap.all_vars();
+//! let mut opt = opt_cfg.build(vars.clone())?;
+//! let schedule = LrScheduler::new(sched_cfg, opt_cfg.lr())?;
+//! let mut guard = NanGuard::new();
+//! let mut log = ScalarLog::new();
+//! let progress = Progress::new(300);
+//! for step in 0..300 {
+//!     let lr = schedule.apply(&mut opt, step);
+//!     let loss = model.forward(&x)?.sub(&y)?.sqr()?.mean_all()?;
+//!     let info = train_step(step, &loss, &mut opt, &vars, &ClipConfig::Norm { max_norm: 10.0 }, &mut guard)?;
+//!     log.log(step, &[("loss", info.loss), ("grad_norm", info.grad_norm), ("lr", lr)])?;
+//!     progress.update(step, info.loss);
+//! }
+//! progress.finish();
+//! assert!(log.last("loss").unwrap() < 1e-4, "{:?}", log.last("loss"));
+//! # Ok::<(), pbdl_core::Error>(())
+//! ```
+
+pub mod clip;
+pub mod guard;
+pub mod log;
+pub mod optim;
+pub mod progress;
+pub mod schedule;
+pub mod step;
+
+pub use clip::{clip_grad_norm, clip_grad_value, grad_norm, ClipConfig};
+pub use guard::NanGuard;
+pub use log::{LogFormat, LogRow, ScalarLog};
+pub use optim::{AdamConfig, AdamWConfig, Optim, OptimizerConfig, Sgd, SgdConfig};
+pub use progress::Progress;
+pub use schedule::{LrScheduler, PlateauConfig, ScheduleConfig};
+pub use step::{train_step, StepInfo};

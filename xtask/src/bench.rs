@@ -1,0 +1,58 @@
+//! `cargo xtask bench [crate]`: time against error in the shared schema.
+
+use crate::{registry, report};
+use pbdl_core::bench::{BenchReport, BenchRow};
+use pbdl_core::registry::TaskContext;
+
+/// Runs the bench entries of the selected crates and writes one report per crate.
+pub fn run(krate: Option<&str>, quick: bool) -> anyhow::Result<()> {
+    let dir = report::target_dir().join("bench");
+    std::fs::create_dir_all(&dir)?;
+    let threads = rayon::current_num_threads();
+    let mut failed = Vec::new();
+    for c in registry::select(krate)? {
+        if c.bench.is_empty() {
+            println!("bench: {} has no bench entries", c.crate_name);
+            continue;
+        }
+        let mut rows: Vec<BenchRow> = Vec::new();
+        for entry in &c.bench {
+            let out_dir = dir.join(c.crate_name);
+            std::fs::create_dir_all(&out_dir)?;
+            let ctx = TaskContext { out_dir, quick, threads };
+            eprintln!("bench: {}/{} ...", c.crate_name, entry.name);
+            match (entry.run)(&ctx) {
+                Ok(r) => rows.extend(r),
+                Err(e) => {
+                    eprintln!("bench: {}/{} failed: {e}", c.crate_name, entry.name);
+                    failed.push(format!("{}/{}", c.crate_name, entry.name));
+                }
+            }
+        }
+        let report = BenchReport { rows };
+        let mut files = report.write(&dir, c.crate_name)?;
+        files.push(pbdl_core::bench::plot_report(&report, &dir.join(format!("{}.png", c.crate_name)), c.crate_name)?);
+        let table: Vec<Vec<String>> = report
+            .rows
+            .iter()
+            .map(|r| {
+                vec![
+                    r.case.clone(),
+                    r.method.clone(),
+                    r.size.clone(),
+                    pbdl_core::bench::format_seconds(r.seconds),
+                    r.unit.clone(),
+                    report::fmt_error(r.error),
+                    r.error_kind.clone(),
+                ]
+            })
+            .collect();
+        println!("\n{}:", c.crate_name);
+        report::print_table(&["case", "method", "size", "median", "unit", "error", "error kind"], &table);
+        for f in files {
+            println!("wrote {}", f.display());
+        }
+    }
+    anyhow::ensure!(failed.is_empty(), "bench entries failed: {}", failed.join(", "));
+    Ok(())
+}

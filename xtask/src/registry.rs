@@ -1,0 +1,39 @@
+//! The crates whose entries xtask runs: one line per crate, nothing else to edit.
+
+use pbdl_core::registry::CrateTasks;
+
+/// Every crate's contribution, in tour order.
+pub fn all() -> Vec<CrateTasks> {
+    vec![pbdl_core::tasks()]
+}
+
+/// The crates selected by an optional name; an unknown name lists the known ones.
+pub fn select(krate: Option<&str>) -> anyhow::Result<Vec<CrateTasks>> {
+    let all = all();
+    match krate {
+        None => Ok(all),
+        Some(name) => {
+            let names: Vec<&str> = all.iter().map(|c| c.crate_name).collect();
+            let known = names.join(", ");
+            let picked: Vec<CrateTasks> = all.into_iter().filter(|c| c.crate_name == name).collect();
+            anyhow::ensure!(!picked.is_empty(), "unknown crate `{name}`; known crates: {known}");
+            Ok(picked)
+        }
+    }
+}
+
+/// Prints every registered entry.
+pub fn print_list() {
+    for c in all() {
+        println!("{}", c.crate_name);
+        for e in &c.tour {
+            println!("  tour   {:<24} {}", e.name, e.about);
+        }
+        for e in &c.bench {
+            println!("  bench  {:<24} {}", e.name, e.about);
+        }
+        for e in &c.stress {
+            println!("  stress {:<24} {}", e.name, e.about);
+        }
+    }
+}

@@ -1,0 +1,110 @@
+//! `cargo xtask tour`: every method on its embedded default scene, one report.
+
+use crate::{registry, report};
+use pbdl_core::registry::{TaskContext, TourRow};
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Serialize)]
+struct SummaryEntry {
+    krate: String,
+    entry: String,
+    ok: bool,
+    error_message: Option<String>,
+    wall_seconds: f64,
+    rows: Vec<TourRow>,
+    files: Vec<PathBuf>,
+}
+
+/// Runs all tour entries and writes `report.md`, `summary.json` and the entries' files to `out`.
+pub fn run(quick: bool, out: PathBuf) -> anyhow::Result<()> {
+    std::fs::create_dir_all(&out)?;
+    let threads = rayon::current_num_threads();
+    let mut summary = Vec::new();
+    let mut md = format!(
+        "# pbdl tour\n\nEvery available method on its embedded default scene ({} threads{}).\n\n",
+        threads,
+        if quick { ", quick mode" } else { "" }
+    );
+    let started = Instant::now();
+    for krate in registry::all() {
+        for entry in &krate.tour {
+            let dir = out.join(krate.crate_name).join(entry.name);
+            std::fs::create_dir_all(&dir)?;
+            let ctx = TaskContext { out_dir: dir.clone(), quick, threads };
+            eprintln!("tour: {}/{} ...", krate.crate_name, entry.name);
+            let t = Instant::now();
+            let result = (entry.run)(&ctx);
+            let wall = t.elapsed().as_secs_f64();
+            md.push_str(&format!("## {} / {}\n\n{}\n\n", krate.crate_name, entry.name, entry.about));
+            match result {
+                Ok(outcome) => {
+                    md.push_str(&outcome.markdown);
+                    md.push_str("\n\n");
+                    let files = outcome
+                        .files
+                        .iter()
+                        .map(|f| f.strip_prefix(&out).map(|p| p.to_path_buf()).unwrap_or_else(|_| f.clone()))
+                        .collect();
+                    summary.push(SummaryEntry {
+                        krate: krate.crate_name.into(),
+                        entry: entry.name.into(),
+                        ok: true,
+                        error_message: None,
+                        wall_seconds: wall,
+                        rows: outcome.rows,
+                        files,
+                    });
+                }
+                Err(e) => {
+                    md.push_str(&format!("**FAILED**: {e}\n\n"));
+                    summary.push(SummaryEntry {
+                        krate: krate.crate_name.into(),
+                        entry: entry.name.into(),
+                        ok: false,
+                        error_message: Some(e.to_string()),
+                        wall_seconds: wall,
+                        rows: vec![],
+                        files: vec![],
+                    });
+                }
+            }
+        }
+    }
+    let total = started.elapsed().as_secs_f64();
+    md.push_str(&format!("Total wall time: {total:.1} s.\n"));
+    pbdl_core::io::write_atomic(&out.join("report.md"), |w| w.write_all(md.as_bytes()))?;
+    let json = serde_json::to_string_pretty(&serde_json::json!({ "total_seconds": total, "threads": threads, "entries": summary }))?;
+    pbdl_core::io::write_atomic(&out.join("summary.json"), |w| w.write_all(json.as_bytes()))?;
+
+    let mut rows = Vec::new();
+    for s in &summary {
+        if !s.ok {
+            rows.push(vec![
+                format!("{}/{}", s.krate, s.entry),
+                "FAILED".into(),
+                "-".into(),
+                "-".into(),
+                s.error_message.clone().unwrap_or_default(),
+            ]);
+        }
+        for r in &s.rows {
+            rows.push(vec![
+                format!("{}/{}: {}", s.krate, s.entry, r.item),
+                pbdl_core::bench::format_seconds(r.seconds),
+                report::fmt_error(r.error),
+                r.error_kind.clone(),
+                r.note.clone(),
+            ]);
+        }
+    }
+    println!();
+    report::print_table(&["item", "time", "error", "error kind", "note"], &rows);
+    println!("\ntour: {:.1} s; report in {}", total, out.join("report.md").display());
+    let failed: Vec<String> = summary.iter().filter(|s| !s.ok).map(|s| format!("{}/{}", s.krate, s.entry)).collect();
+    anyhow::ensure!(failed.is_empty(), "tour entries failed: {}", failed.join(", "));
+    Ok(())
+}
+
+use std::io::Write as _;
