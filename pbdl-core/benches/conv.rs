@@ -4,6 +4,8 @@
 //! computes the gradients with respect to both the input and the weight.
 //!
 //! Run with `cargo bench -p pbdl-core --bench conv`.
+// criterion's macros generate undocumented functions.
+#![allow(missing_docs)]
 
 use candle_core::{DType, Device, Tensor, Var};
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -23,6 +25,9 @@ fn inputs() -> (Var, Var) {
     (Var::from_tensor(&x).unwrap(), Var::from_tensor(&w).unwrap())
 }
 
+/// A convolution under test: input and weight to output.
+type ConvFn = fn(&Tensor, &Tensor) -> Tensor;
+
 fn ours(x: &Tensor, w: &Tensor) -> Tensor {
     conv2d(x, w, None, &Conv2dParams::default().padding(1)).unwrap()
 }
@@ -32,14 +37,14 @@ fn candle(x: &Tensor, w: &Tensor) -> Tensor {
 }
 
 /// Forward, then the gradients of `sum(y)` with respect to input and weight.
-fn fwd_bwd(f: fn(&Tensor, &Tensor) -> Tensor, x: &Var, w: &Var) -> (Tensor, Tensor) {
+fn fwd_bwd(f: ConvFn, x: &Var, w: &Var) -> (Tensor, Tensor) {
     let grads = f(x.as_tensor(), w.as_tensor()).sum_all().unwrap().backward().unwrap();
     (grads.get(x.as_tensor()).unwrap().clone(), grads.get(w.as_tensor()).unwrap().clone())
 }
 
 fn bench(c: &mut Criterion) {
     let (x, w) = inputs();
-    let cases: [(&str, fn(&Tensor, &Tensor) -> Tensor); 2] = [("ours", ours), ("candle", candle)];
+    let cases: [(&str, ConvFn); 2] = [("ours", ours), ("candle", candle)];
 
     let mut g = c.benchmark_group("conv2d_f32_fwd");
     g.sample_size(20).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(4));

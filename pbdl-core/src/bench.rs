@@ -13,8 +13,8 @@
 
 use crate::{io::write_atomic, Error, Result};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
 use std::io::Write as _;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// One measurement: the median time of one unit of work and the error it reached.
@@ -123,37 +123,85 @@ pub fn format_seconds(s: f64) -> String {
     }
 }
 
-/// Draws the rows that have an error as a time-against-error (Pareto) plot, one colour per
-/// `case/method`, and writes it to `path`. Rows without an error are listed in the markdown
-/// table only. Returns `path`.
-pub fn plot_report(report: &BenchReport, path: &Path, title: &str) -> Result<PathBuf> {
-    use crate::viz::{pareto_plot, ParetoPoint, PlotStyle};
-    let points: Vec<ParetoPoint> = report
-        .rows
-        .iter()
-        .filter_map(|r| {
-            let e = r.error.filter(|e| e.is_finite() && *e > 0.0)?;
-            (r.seconds > 0.0).then(|| ParetoPoint::new(format!("{} / {}", r.case, r.method), r.seconds, e).with_label(r.size.clone()))
-        })
-        .collect();
-    if points.is_empty() {
-        // Nothing to plot against error: draw times per case instead so the file still shows the run.
-        let series: Vec<crate::viz::Series> = report
+/// Draws time against error (a Pareto plot) for every case that has rows with an error, one
+/// PNG per case (`<stem>_<case>.png`, one colour per method, sizes as labels), because a Pareto
+/// front across different problems means nothing. `<stem>.png` repeats the case with the most
+/// such rows; with no error rows at all it shows the median times instead. Returns the paths.
+pub fn plot_report(report: &BenchReport, dir: &Path, stem: &str) -> Result<Vec<PathBuf>> {
+    use crate::viz::{line_plot, pareto_plot, ParetoPoint, PlotStyle, Series};
+    let mut cases: Vec<&str> = Vec::new();
+    for r in &report.rows {
+        if !cases.contains(&r.case.as_str()) {
+            cases.push(&r.case);
+        }
+    }
+    let mut written = Vec::new();
+    let mut best: Option<(usize, PathBuf)> = None;
+    for case in cases {
+        let points: Vec<ParetoPoint> = report
             .rows
             .iter()
-            .enumerate()
-            .map(|(i, r)| crate::viz::Series::new(format!("{} / {} ({})", r.case, r.method, r.size), vec![i as f64, i as f64 + 0.5], vec![r.seconds, r.seconds]))
+            .filter(|r| r.case == case && r.seconds > 0.0)
+            .filter_map(|r| {
+                let e = r.error.filter(|e| e.is_finite() && *e > 0.0)?;
+                Some(ParetoPoint::new(r.method.clone(), r.seconds, e).with_label(r.size.clone()))
+            })
             .collect();
-        if series.is_empty() {
-            return Err(Error::invalid("plot_report", "report", "no rows to plot"));
+        if points.is_empty() {
+            continue;
         }
-        let style = PlotStyle { title: format!("{title}: median time per unit"), y_label: "seconds".into(), log_y: true, ..Default::default() };
-        crate::viz::line_plot(path, &series, &style)?;
-    } else {
-        let style = PlotStyle { title: format!("{title}: time vs error"), x_label: "median seconds per unit".into(), ..PlotStyle::pareto() };
-        pareto_plot(path, &points, &style)?;
+        let kind = report
+            .rows
+            .iter()
+            .find(|r| r.case == case && r.error.is_some())
+            .map(|r| r.error_kind.clone())
+            .unwrap_or_default();
+        let style = PlotStyle {
+            title: format!("{stem}: {case}"),
+            x_label: "median seconds per unit".into(),
+            y_label: format!("error ({kind})"),
+            ..PlotStyle::pareto()
+        };
+        let path = dir.join(format!("{stem}_{case}.png"));
+        pareto_plot(&path, &points, &style)?;
+        if best.as_ref().is_none_or(|(n, _)| points.len() > *n) {
+            best = Some((points.len(), path.clone()));
+        }
+        written.push(path);
     }
-    Ok(path.to_path_buf())
+    let main = dir.join(format!("{stem}.png"));
+    match best {
+        Some((_, path)) => {
+            std::fs::copy(&path, &main).map_err(|e| Error::io(&main, e))?;
+        }
+        None => {
+            // No errors to plot against: show the median times so the run is still visible.
+            let series: Vec<Series> = report
+                .rows
+                .iter()
+                .enumerate()
+                .map(|(i, r)| {
+                    Series::new(
+                        format!("{} / {} ({})", r.case, r.method, r.size),
+                        vec![i as f64, i as f64 + 0.8],
+                        vec![r.seconds; 2],
+                    )
+                })
+                .collect();
+            if series.is_empty() {
+                return Err(Error::invalid("plot_report", "report", "no rows to plot"));
+            }
+            let style = PlotStyle {
+                title: format!("{stem}: median time per unit"),
+                y_label: "seconds".into(),
+                log_y: true,
+                ..Default::default()
+            };
+            line_plot(&main, &series, &style)?;
+        }
+    }
+    written.insert(0, main);
+    Ok(written)
 }
 
 #[cfg(test)]

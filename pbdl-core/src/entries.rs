@@ -9,8 +9,8 @@
 use crate::bench::{median_seconds, BenchRow};
 use crate::conv::{conv2d, conv3d, Conv2dParams, Conv3dParams, ConvParams, PaddingMode};
 use crate::io::{load_varmap, save_varmap, CheckpointMeta};
-use crate::sample::{grid_sample, warp, Boundary};
 use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
+use crate::sample::{grid_sample, warp, Boundary};
 use crate::viz;
 use crate::{check_grad, seed, GradCheckOptions};
 use candle_core::{DType, Device, Tensor, Var};
@@ -102,7 +102,13 @@ fn tour_conv(ctx: &TaskContext) -> TaskResult<TourOutcome> {
             error_kind: "rel max diff vs candle (y, dx, dw)".into(),
             note: format!("{:.2}x faster than candle", c.candle_s / c.ours_s),
         },
-        TourRow { item: format!("{item}, candle"), seconds: c.candle_s, error: None, error_kind: String::new(), note: "peer".into() },
+        TourRow {
+            item: format!("{item}, candle"),
+            seconds: c.candle_s,
+            error: None,
+            error_kind: String::new(),
+            note: "peer".into(),
+        },
     ];
     let markdown = format!(
         "| implementation | median time | rel. difference |\n|---|---:|---:|\n| pbdl | {} | {:.2e} |\n| candle 0.11 | {} | (reference) |\n\nSpeed-up {:.2}x on {} threads.",
@@ -122,7 +128,8 @@ fn test_field(x: f64, y: f64, n: usize) -> f64 {
 }
 
 fn field_tensor(n: usize, shift: (f64, f64)) -> candle_core::Result<Tensor> {
-    let data: Vec<f64> = (0..n * n).map(|i| test_field((i % n) as f64 + shift.0, (i / n) as f64 + shift.1, n)).collect();
+    let data: Vec<f64> =
+        (0..n * n).map(|i| test_field((i % n) as f64 + shift.0, (i / n) as f64 + shift.1, n)).collect();
     Tensor::from_vec(data, (1, 1, n, n), &Device::Cpu)
 }
 
@@ -178,7 +185,10 @@ fn tour_sampling(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     let slope: Vec<f64> = xs.iter().map(|&x| 2.0 * errs[0] * (sizes[0] as f64 / x).powi(2)).collect();
     viz::line_plot(
         &plot,
-        &[viz::Series::new("bilinear warp", xs.clone(), errs.clone()), viz::Series::new("slope -2 (offset x2)", xs.clone(), slope)],
+        &[
+            viz::Series::new("bilinear warp", xs.clone(), errs.clone()),
+            viz::Series::new("slope -2 (offset x2)", xs.clone(), slope),
+        ],
         &viz::PlotStyle {
             title: "Sub-cell shift: error vs resolution".into(),
             x_label: "grid size n".into(),
@@ -260,7 +270,9 @@ fn tour_checkpoint(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     let vb = candle_nn::VarBuilder::from_varmap(&varmap, DType::F32, &dev);
     let cfg = crate::conv::ConvLayerConfig::new(4, 16, [3, 3]).with_params(ConvParams::default().padding(1));
     let _l1 = cfg.init(vb.pp("conv1"))?;
-    let _l2 = crate::conv::ConvLayerConfig::new(16, 4, [3, 3]).with_params(ConvParams::default().padding(1)).init(vb.pp("conv2"))?;
+    let _l2 = crate::conv::ConvLayerConfig::new(16, 4, [3, 3])
+        .with_params(ConvParams::default().padding(1))
+        .init(vb.pp("conv2"))?;
     let path = ctx.out_dir.join("net.safetensors");
     let meta = CheckpointMeta { step: 42, seed: Some(7), config: serde_json::json!({"layers": [[4, 16], [16, 4]]}) };
     let t = Instant::now();
@@ -270,7 +282,9 @@ fn tour_checkpoint(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     let restored = candle_nn::VarMap::new();
     let vb2 = candle_nn::VarBuilder::from_varmap(&restored, DType::F32, &dev);
     cfg.init(vb2.pp("conv1"))?;
-    crate::conv::ConvLayerConfig::new(16, 4, [3, 3]).with_params(ConvParams::default().padding(1)).init(vb2.pp("conv2"))?;
+    crate::conv::ConvLayerConfig::new(16, 4, [3, 3])
+        .with_params(ConvParams::default().padding(1))
+        .init(vb2.pp("conv2"))?;
     let t = Instant::now();
     let back = load_varmap(&path, &restored)?;
     let load_s = t.elapsed().as_secs_f64();
@@ -389,7 +403,17 @@ fn bench_sampling(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
 }
 
 /// Direct-sum 2D convolution in f64 (zero or circular padding), the reference of the fuzz test.
-fn direct_conv2d(x: &[f64], xs: [usize; 4], w: &[f64], ws: [usize; 4], stride: usize, pad: usize, dil: usize, groups: usize, circular: bool) -> (Vec<f64>, [usize; 4]) {
+fn direct_conv2d(
+    x: &[f64],
+    xs: [usize; 4],
+    w: &[f64],
+    ws: [usize; 4],
+    stride: usize,
+    pad: usize,
+    dil: usize,
+    groups: usize,
+    circular: bool,
+) -> (Vec<f64>, [usize; 4]) {
     let [b, cin, h, wd] = xs;
     let [cout, cing, kh, kw] = ws;
     let oh = (h + 2 * pad - dil * (kh - 1) - 1) / stride + 1;

@@ -32,13 +32,13 @@ pub mod io;
 pub mod nn;
 pub mod op;
 pub mod real;
+pub mod registry;
 pub mod sample;
 pub mod seed;
-pub mod viz;
-pub mod registry;
 pub mod train;
+pub mod viz;
 
+pub use entries::tasks;
 pub use error::{Error, Result};
 pub use grad_check::{assert_all_have_grads, assert_varmap_has_grads, check_grad, GradCheckOptions, GradCheckReport};
-pub use entries::tasks;
 pub use real::Real;

@@ -31,7 +31,7 @@ pub fn run(krate: Option<&str>, quick: bool) -> anyhow::Result<()> {
         }
         let report = BenchReport { rows };
         let mut files = report.write(&dir, c.crate_name)?;
-        files.push(pbdl_core::bench::plot_report(&report, &dir.join(format!("{}.png", c.crate_name)), c.crate_name)?);
+        files.extend(pbdl_core::bench::plot_report(&report, &dir, c.crate_name)?);
         let table: Vec<Vec<String>> = report
             .rows
             .iter()

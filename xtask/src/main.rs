@@ -6,12 +6,14 @@
 //! * `bench [crate]`: time against error in the shared schema, `target/pbdl/bench/<crate>.json`
 //!   plus a markdown table and a PNG plot.
 //! * `stress [crate]`: long and extreme runs; reports the first step at which an invariant breaks.
+//! * `sim grid <scene | file.toml>`: runs a scene, writes its trajectory (`.npz`) and renders.
 //! * `ci`: format check, clippy with `-D warnings`, the test suite.
 
 mod bench;
 mod ci;
 mod registry;
 mod report;
+mod sim;
 mod stress;
 mod tour;
 
@@ -52,11 +54,52 @@ enum Command {
         #[arg(long)]
         quick: bool,
     },
+    /// Run a simulation scene; write its trajectory (.npz, [T, C, Y, X] per field) and PNG/GIF
+    /// renders to target/pbdl/sim/<scene>/.
+    #[command(after_help = SIM_HELP)]
+    Sim {
+        /// The simulator crate: `grid`.
+        krate: String,
+        /// A built-in scene name (burgers_1d, burgers_2d, heat, poisson, advection_diffusion,
+        /// taylor_green, lid_driven_cavity, kolmogorov, smoke_plume, cylinder) or a .toml file.
+        scene: String,
+        /// Cells along x (y scaled to keep the aspect ratio).
+        #[arg(long)]
+        res: Option<usize>,
+        /// Number of steps (replaces the scene's steps / t_end; the time step is kept).
+        #[arg(long)]
+        steps: Option<usize>,
+        /// Start from the fields in this .npz (see below for names and layout).
+        #[arg(long)]
+        init: Option<PathBuf>,
+        /// Output directory (default: target/pbdl/sim/<scene>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// fmt check, clippy -D warnings, tests.
     Ci,
     /// List the registered tour, bench and stress entries.
     List,
 }
+
+const SIM_HELP: &str = "\
+Output: <out>/<scene>.npz with one array per field, [T, C, Y, X] (x fastest, y up), plus
+`time` [T] and `step` [T]; PNG/GIF renders beside it. Velocity scenes write `velocity`
+[T, 2, Y, X] on cell centres, `velocity_mac` [T, 2, Y, X] as stored (u at x-faces
+((i+1) dx, (j+1/2) dy), v at y-faces ((i+1/2) dx, (j+1) dy)) and `vorticity` [T, 1, Y, X] at
+the cell corners. Scalar scenes write `u` (burgers_1d, Y = 1), `temperature` (heat), `phi` and
+`source` (poisson), `concentration` (advection_diffusion).
+
+--init FILE.npz: velocity scenes read `velocity` on cell centres, [2, Y, X] or [1, 2, Y, X] or a
+trajectory [T, 2, Y, X] (its last frame), any Y, X (resampled bilinearly to the grid), then
+averaged to the faces and made divergence-free; or `velocity_mac` with the grid's exact shape.
+Scalar scenes read their scalar by the name above ([Y, X], [1, Y, X] or [T, 1, Y, X]; the
+Poisson scene reads `source`). A trajectory written by `sim` is a valid --init file.
+
+Examples:
+  cargo xtask sim grid taylor_green --res 128
+  cargo xtask sim grid lid_driven_cavity --res 64 --out /tmp/cavity
+  cargo xtask sim grid my_scene.toml --init start.npz --steps 500";
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
@@ -64,6 +107,9 @@ fn main() -> anyhow::Result<()> {
         Command::Tour { quick, out } => tour::run(quick, out.unwrap_or_else(|| report::target_dir().join("tour"))),
         Command::Bench { krate, quick } => bench::run(krate.as_deref(), quick),
         Command::Stress { krate, quick } => stress::run(krate.as_deref(), quick),
+        Command::Sim { krate, scene, res, steps, init, out } => {
+            sim::run(sim::SimArgs { krate, scene, res, steps, init, out })
+        }
         Command::Ci => ci::run(),
         Command::List => {
             registry::print_list();

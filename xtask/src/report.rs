@@ -4,12 +4,10 @@ use std::path::PathBuf;
 
 /// `target/pbdl` of the workspace (or of `CARGO_TARGET_DIR`).
 pub fn target_dir() -> PathBuf {
-    let target = std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-            root.canonicalize().unwrap_or(root).join("target")
-        });
+    let target = std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| {
+        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+        root.canonicalize().unwrap_or(root).join("target")
+    });
     target.join("pbdl")
 }
 

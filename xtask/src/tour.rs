@@ -74,9 +74,11 @@ pub fn run(quick: bool, out: PathBuf) -> anyhow::Result<()> {
     }
     let total = started.elapsed().as_secs_f64();
     md.push_str(&format!("Total wall time: {total:.1} s.\n"));
-    pbdl_core::io::write_atomic(&out.join("report.md"), |w| w.write_all(md.as_bytes()))?;
-    let json = serde_json::to_string_pretty(&serde_json::json!({ "total_seconds": total, "threads": threads, "entries": summary }))?;
-    pbdl_core::io::write_atomic(&out.join("summary.json"), |w| w.write_all(json.as_bytes()))?;
+    pbdl_core::io::write_atomic(out.join("report.md"), |w| w.write_all(md.as_bytes()))?;
+    let json = serde_json::to_string_pretty(
+        &serde_json::json!({ "total_seconds": total, "threads": threads, "entries": summary }),
+    )?;
+    pbdl_core::io::write_atomic(out.join("summary.json"), |w| w.write_all(json.as_bytes()))?;
 
     let mut rows = Vec::new();
     for s in &summary {

@@ -29,27 +29,23 @@ pub(crate) fn conv_grad_input<T: Real>(g: &Geometry, gy: &[T], w: &[T], gx: &mut
     if units == 0 || unit_len == 0 {
         return;
     }
-    let plan = Plan::new(g);
+    let plan = Plan::new::<T>(g);
     let pointwise = g.pointwise();
-    let (chunks, par) = split(units);
-    let per = units.div_ceil(chunks);
-    gx.par_chunks_mut(per * unit_len).enumerate().for_each(|(ci, gxs)| {
-        let mut col = if pointwise { Vec::new() } else { vec![T::zero(); plan.tile_len()] };
-        for (j, gxu) in gxs.chunks_mut(unit_len).enumerate() {
-            let u = ci * per + j;
-            let (b, grp) = (u / g.groups, u % g.groups);
-            let gyg = &gy[(b * g.c_out + grp * cout_g) * out_len..][..cout_g * out_len];
-            // W_g^T: element (tap, o) of the group's [cout_g, kg] block.
-            let wt = Mat { data: &w[grp * cout_g * kg..][..cout_g * kg], rs: 1, cs: kg };
-            for lines in plan.tiles() {
-                let (off, n) = (lines.start * ow, lines.len() * ow);
-                let gy_tile = Mat { data: &gyg[off..], rs: out_len, cs: 1 };
-                if pointwise {
-                    matmul(&mut gxu[off..], in_len, false, wt, gy_tile, (kg, n, cout_g), par);
-                } else {
-                    matmul(&mut col, n, false, wt, gy_tile, (kg, n, cout_g), par);
-                    plan.col2im(&col, &lines, gxu);
-                }
+    let (_, par) = split(units);
+    let scratch = || if pointwise { Vec::new() } else { vec![T::zero(); plan.tile_len()] };
+    gx.par_chunks_mut(unit_len).enumerate().for_each_init(scratch, |col, (u, gxu)| {
+        let (b, grp) = (u / g.groups, u % g.groups);
+        let gyg = &gy[(b * g.c_out + grp * cout_g) * out_len..][..cout_g * out_len];
+        // W_g^T: element (tap, o) of the group's [cout_g, kg] block.
+        let wt = Mat { data: &w[grp * cout_g * kg..][..cout_g * kg], rs: 1, cs: kg };
+        for lines in plan.tiles() {
+            let (off, n) = (lines.start * ow, lines.len() * ow);
+            let gy_tile = Mat { data: &gyg[off..], rs: out_len, cs: 1 };
+            if pointwise {
+                matmul(&mut gxu[off..], in_len, false, wt, gy_tile, (kg, n, cout_g), par);
+            } else {
+                matmul(col, n, false, wt, gy_tile, (kg, n, cout_g), par);
+                plan.col2im(col, &lines, gxu);
             }
         }
     });
@@ -68,7 +64,7 @@ pub(crate) fn conv_grad_weight<T: Real>(g: &Geometry, x: &[T], gy: &[T], gw: &mu
     if units == 0 || gw.is_empty() {
         return;
     }
-    let plan = Plan::new(g);
+    let plan = Plan::new::<T>(g);
     let pointwise = g.pointwise();
     let (chunks, par) = split(units);
     let per = units.div_ceil(chunks);

@@ -11,7 +11,8 @@ use rayon::prelude::*;
 
 /// `y = conv(x, w)` on dense buffers; `y` is overwritten.
 ///
-/// Work is split into (image, group) units; each unit writes its own contiguous block of `y`.
+/// Work is split into (image, group) units; each unit writes its own contiguous block of `y`,
+/// so units run in parallel.
 pub(crate) fn conv_forward<T: Real>(g: &Geometry, x: &[T], w: &[T], y: &mut [T]) {
     let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
     let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);
@@ -20,28 +21,24 @@ pub(crate) fn conv_forward<T: Real>(g: &Geometry, x: &[T], w: &[T], y: &mut [T])
     if units == 0 || unit_len == 0 {
         return;
     }
-    let plan = Plan::new(g);
+    let plan = Plan::new::<T>(g);
     let pointwise = g.pointwise();
-    let (chunks, par) = split(units);
-    let per = units.div_ceil(chunks);
-    y.par_chunks_mut(per * unit_len).enumerate().for_each(|(ci, ys)| {
-        // One scratch tile per thread, reused for every unit and tile.
-        let mut col = if pointwise { Vec::new() } else { vec![T::zero(); plan.tile_len()] };
-        for (j, yu) in ys.chunks_mut(unit_len).enumerate() {
-            let u = ci * per + j;
-            let (b, grp) = (u / g.groups, u % g.groups);
-            let xg = &x[(b * g.c_in + grp * cin_g) * in_len..][..cin_g * in_len];
-            let wg = Mat { data: &w[grp * cout_g * kg..][..cout_g * kg], rs: kg, cs: 1 };
-            for lines in plan.tiles() {
-                let (off, n) = (lines.start * ow, lines.len() * ow);
-                let cols = if pointwise {
-                    Mat { data: &xg[off..], rs: in_len, cs: 1 }
-                } else {
-                    plan.im2col(xg, &lines, &mut col);
-                    Mat { data: &col, rs: n, cs: 1 }
-                };
-                matmul(&mut yu[off..], out_len, false, wg, cols, (cout_g, n, kg), par);
-            }
+    let (_, par) = split(units);
+    // One scratch tile per rayon job, reused for its units and tiles.
+    let scratch = || if pointwise { Vec::new() } else { vec![T::zero(); plan.tile_len()] };
+    y.par_chunks_mut(unit_len).enumerate().for_each_init(scratch, |col, (u, yu)| {
+        let (b, grp) = (u / g.groups, u % g.groups);
+        let xg = &x[(b * g.c_in + grp * cin_g) * in_len..][..cin_g * in_len];
+        let wg = Mat { data: &w[grp * cout_g * kg..][..cout_g * kg], rs: kg, cs: 1 };
+        for lines in plan.tiles() {
+            let (off, n) = (lines.start * ow, lines.len() * ow);
+            let cols = if pointwise {
+                Mat { data: &xg[off..], rs: in_len, cs: 1 }
+            } else {
+                plan.im2col(xg, &lines, col);
+                Mat { data: col.as_slice(), rs: n, cs: 1 }
+            };
+            matmul(&mut yu[off..], out_len, false, wg, cols, (cout_g, n, kg), par);
         }
     });
 }

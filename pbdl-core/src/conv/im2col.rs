@@ -14,9 +14,9 @@ use std::ops::Range;
 /// Marks a tap that reads outside the (zero-padded) input.
 const OUTSIDE: usize = usize::MAX;
 
-/// Target size (elements) of one im2col tile: large enough for efficient matrix products,
-/// small enough to stay in the outer cache levels.
-const TILE_ELEMS: usize = 1 << 18;
+/// Target size of one im2col tile: large enough for efficient matrix products, small enough to
+/// stay in a core's L2 cache next to the packed panels of the matrix product.
+const TILE_BYTES: usize = 256 << 10;
 
 /// A run of consecutive outputs along x whose taps read `src, src + stride, ...`, or zeros.
 #[derive(Clone, Copy, Debug)]
@@ -59,9 +59,9 @@ fn axis_map(geo: &Geometry, axis: usize) -> Vec<usize> {
 }
 
 impl Plan {
-    /// Builds the index maps for `geo`.
-    pub fn new(geo: &Geometry) -> Self {
-        Self::with_tile_elems(geo, TILE_ELEMS)
+    /// Builds the index maps for `geo`, with tiles sized for elements of type `T`.
+    pub fn new<T>(geo: &Geometry) -> Self {
+        Self::with_tile_elems(geo, TILE_BYTES / std::mem::size_of::<T>())
     }
 
     /// [`Plan::new`] with im2col tiles of about `tile_elems` elements (at least one line).
@@ -217,7 +217,7 @@ mod tests {
         let p = Conv2dParams { padding: [0, 1], ..Default::default() };
         let g = geo(&[1, 1, 2, 3], &[1, 1, 2, 2], p);
         assert_eq!(g.output, [1, 1, 4]);
-        let plan = Plan::new(&g);
+        let plan = Plan::new::<f64>(&g);
         let x = [1.0f64, 2.0, 3.0, 4.0, 5.0, 6.0];
         let mut col = vec![f64::NAN; plan.tile_len()];
         plan.im2col(&x, &(0..1), &mut col);
@@ -237,7 +237,7 @@ mod tests {
         let g = geo(&[1, 1, 1, 5], &[1, 1, 1, 3], p);
         // (5 + 4 - 3) / 2 + 1 = 4 outputs reading x[-2..1], x[0..3], x[2..5], x[4..7] (periodic).
         assert_eq!(g.output, [1, 1, 4]);
-        let plan = Plan::new(&g);
+        let plan = Plan::new::<f64>(&g);
         let x = [10.0f64, 11.0, 12.0, 13.0, 14.0];
         let mut col = vec![f64::NAN; plan.tile_len()];
         plan.im2col(&x, &(0..1), &mut col);

@@ -73,12 +73,14 @@ pub(crate) fn matmul<T: Real>(
     }
 }
 
-/// How a kernel splits its work: over independent blocks on rayon's threads, or one block at a
-/// time with a multithreaded matrix product.
-pub(crate) fn split(blocks: usize) -> (usize, Parallelism) {
+/// How a kernel splits `units` independent blocks of work over rayon's threads: into how many
+/// parallel chunks, and with which parallelism inside each matrix product (the threads left
+/// over when there are fewer units than threads, e.g. a single image).
+pub(crate) fn split(units: usize) -> (usize, Parallelism) {
     let threads = rayon::current_num_threads().max(1);
-    let chunks = threads.min(blocks).max(1);
-    let par = if chunks == 1 && threads > 1 { Parallelism::Rayon(threads) } else { Parallelism::None };
+    let chunks = threads.min(units).max(1);
+    let inner = threads / chunks;
+    let par = if inner > 1 { Parallelism::Rayon(inner) } else { Parallelism::None };
     (chunks, par)
 }
 

@@ -8,11 +8,14 @@
 //! Every convolution runs as a 3D one (1D and 2D get singleton axes): the input is gathered
 //! tile by tile into an im2col matrix and multiplied with the weight by the `gemm` crate, in
 //! parallel over images and channel groups. The gradients with respect to the input (a
-//! transposed convolution, via col2im) and the weight are ops of their own and are
-//! differentiable again, so the result works with candle's autograd to any order.
+//! transposed convolution, via col2im) and the weight are ops of their own and differentiable
+//! again, so second derivatives are available wherever candle keeps the gradient graph (it
+//! detaches gradients of intermediate nodes unless `CANDLE_GRAD_DO_NOT_DETACH=1`).
 //!
-//! Compared with candle's `conv1d`/`conv2d` this adds conv3d, circular padding, per-axis
-//! stride/padding/dilation, and a faster backward pass.
+//! Compared with candle 0.11's `conv1d`/`conv2d` this adds conv3d, circular padding, per-axis
+//! stride/padding/dilation, a several times faster backward pass, and correct gradients where
+//! candle's are not: its conv1d gradients are wrong for batch > 1, and its strided conv2d
+//! backward fails when the two axes need different output paddings (e.g. 9x8 input, stride 2).
 //!
 //! ```
 //! use candle_core::{DType, Device, Tensor, Var};
@@ -66,6 +69,13 @@ pub fn conv<const N: usize>(
 ) -> Result<Tensor> {
     const OP: &str = "conv";
     let geo = Geometry::new(OP, x.dims(), weight.dims(), params)?;
+    if !x.device().is_cpu() || !weight.device().is_cpu() || bias.is_some_and(|b| !b.device().is_cpu()) {
+        return Err(Error::invalid(
+            OP,
+            "input",
+            "the convolution runs on the CPU; move the tensors with `.to_device(&Device::Cpu)`",
+        ));
+    }
     check_float(OP, "input", x)?;
     check_float(OP, "weight", weight)?;
     if weight.dtype() != x.dtype() {
