@@ -29,6 +29,7 @@ pub fn run(krate: Option<&str>, quick: bool) -> anyhow::Result<()> {
                 }
             }
         }
+        rows.extend(peer_rows(&dir, c.crate_name));
         let report = BenchReport { rows };
         let mut files = report.write(&dir, c.crate_name)?;
         files.extend(pbdl_core::bench::plot_report(&report, &dir, c.crate_name)?);
@@ -55,4 +56,29 @@ pub fn run(krate: Option<&str>, quick: bool) -> anyhow::Result<()> {
     }
     anyhow::ensure!(failed.is_empty(), "bench entries failed: {}", failed.join(", "));
     Ok(())
+}
+
+/// Rows measured by the peer scripts (`bench/peers/`), read from
+/// `target/pbdl/bench/<crate>_peers.json` when that file exists; a message otherwise.
+fn peer_rows(dir: &std::path::Path, krate: &str) -> Vec<BenchRow> {
+    let path = dir.join(format!("{krate}_peers.json"));
+    if !path.is_file() {
+        if krate == "grid" {
+            eprintln!(
+                "bench: no peer results at {} (run `bench/peers/run.sh` to measure PhiFlow and JAX-CFD); peers skipped",
+                path.display()
+            );
+        }
+        return Vec::new();
+    }
+    match BenchReport::read(&path) {
+        Ok(r) => {
+            eprintln!("bench: merged {} peer rows from {}", r.rows.len(), path.display());
+            r.rows.into_iter().map(|row| BenchRow { peer: true, ..row }).collect()
+        }
+        Err(e) => {
+            eprintln!("bench: ignoring {}: {e}", path.display());
+            Vec::new()
+        }
+    }
 }

@@ -1,0 +1,293 @@
+//! Projection with obstacles: the Laplacian restricted to fluid cells, factored once (faer
+//! sparse Cholesky), and a projection that zeroes the normal velocity on every face touching a
+//! solid cell.
+//!
+//! With `m` the open-face mask and `F` the overwrite of the stored boundary faces that a wall or
+//! an inflow fixes, the projection is `u -> w - m G p`, `w = m F u`, `p = L_m^+ D w` on fluid
+//! cells (`L_m = D m G` there, symmetric). Its vector-Jacobian product is
+//! `F m (g - D^T L_m^+ G^T (m g))`: one adjoint solve with the same factor.
+
+use super::project::set_fixed;
+use crate::boundary::{Boundaries, Ghosts, MacGhosts};
+use crate::fd::{div_padded, div_padded_adjoint, grad_padded, grad_padded_adjoint};
+use crate::field::MacField;
+use crate::obstacle::ObstacleMask;
+use crate::pad::{pad, pad_adjoint};
+use crate::scratch::zeros;
+use crate::{Error, Grid, Result};
+use candle_core::{Shape, Tensor};
+use faer::linalg::solvers::Solve;
+use faer::sparse::linalg::solvers::Llt;
+use faer::sparse::{SparseColMat, Triplet};
+use faer::{MatMut, Side};
+use pbdl_core::op::{apply1, apply_kernel1, Kernel1, Op1};
+use pbdl_core::Real;
+use std::sync::Arc;
+
+/// The pressure solve of a domain with obstacles: built once per grid, boundaries and mask.
+pub struct MaskedPressureSolver {
+    grid: Grid,
+    bc: Boundaries,
+    mac: MacGhosts,
+    p: Ghosts,
+    /// Unknown index of each cell, `usize::MAX` for solid cells.
+    index: Vec<usize>,
+    fluid: usize,
+    pinned: bool,
+    mu: Vec<f64>,
+    mv: Vec<f64>,
+    llt: Llt<usize, f64>,
+}
+
+impl std::fmt::Debug for MaskedPressureSolver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MaskedPressureSolver").field("grid", &self.grid).field("fluid_cells", &self.fluid).finish()
+    }
+}
+
+impl MaskedPressureSolver {
+    /// Assembles `-L_m` over the fluid cells of `mask` and factors it. A domain without an
+    /// outflow face has a singular `L_m` (constants); the first fluid cell is then pinned and
+    /// solves return the zero-mean (pseudo-inverse) solution. Fluid regions cut off from each
+    /// other make the factorisation fail (typed [`Error::Solver`]).
+    pub fn new(grid: Grid, bc: &Boundaries, mask: &ObstacleMask) -> Result<Arc<Self>> {
+        grid.validate()?;
+        bc.validate()?;
+        if mask.grid() != &grid {
+            return Err(Error::Invalid { field: "obstacles", reason: "the mask was built for another grid".into() });
+        }
+        let (nx, ny) = (grid.nx, grid.ny);
+        let pbc = bc.pressure();
+        let g = pbc.ghosts(nx, ny);
+        let pinned = !pbc.has_dirichlet();
+        let mut index = vec![usize::MAX; nx * ny];
+        let mut fluid = 0;
+        for j in 0..ny {
+            for i in 0..nx {
+                if !mask.is_solid(j, i) {
+                    index[j * nx + i] = fluid;
+                    fluid += 1;
+                }
+            }
+        }
+        let (ax, ay) = (1.0 / (grid.dx() * grid.dx()), 1.0 / (grid.dy() * grid.dy()));
+        let off = usize::from(pinned);
+        let mut trip = Vec::with_capacity(5 * fluid);
+        let mut row: Vec<(usize, f64)> = Vec::with_capacity(6);
+        for j in 0..ny {
+            for i in 0..nx {
+                let me = j * nx + i;
+                if index[me] == usize::MAX {
+                    continue;
+                }
+                row.clear();
+                let mut add = |cell: usize, v: f64| match row.iter_mut().find(|(c, _)| *c == cell) {
+                    Some(e) => e.1 += v,
+                    None => row.push((cell, v)),
+                };
+                let nb = [
+                    (i == 0, g.x_lo, me.wrapping_sub(1), ax, true),
+                    (i == nx - 1, g.x_hi, me + 1, ax, true),
+                    (j == 0, g.y_lo, me.wrapping_sub(nx), ay, false),
+                    (j == ny - 1, g.y_hi, me + nx, ay, false),
+                ];
+                for (at_edge, gh, inner, a, along_x) in nb {
+                    // A face to a solid cell is closed: no flux, no entry.
+                    let (other, s) = if at_edge {
+                        (if along_x { j * nx + gh.src - 1 } else { (gh.src - 1) * nx + i }, gh.s)
+                    } else {
+                        (inner, 1.0)
+                    };
+                    if index[other] == usize::MAX {
+                        continue;
+                    }
+                    add(me, a);
+                    add(other, -s * a);
+                }
+                if pinned && index[me] == 0 {
+                    continue;
+                }
+                for &(c, v) in &row {
+                    let ci = index[c];
+                    if ci >= off && v != 0.0 {
+                        trip.push(Triplet::new(index[me] - off, ci - off, v));
+                    }
+                }
+            }
+        }
+        let m = fluid - off;
+        let mat = SparseColMat::<usize, f64>::try_new_from_triplets(m, m, &trip).map_err(|e| Error::Solver {
+            solver: "masked pressure cholesky",
+            reason: format!("assembling the {m}x{m} matrix: {e:?}"),
+        })?;
+        let llt = mat.sp_cholesky(Side::Lower).map_err(|e| Error::Solver {
+            solver: "masked pressure cholesky",
+            reason: format!(
+                "factorisation failed ({e:?}); is the fluid region connected and, with an outflow, connected to it?"
+            ),
+        })?;
+        let (mu, mv) = mask.face_masks(bc);
+        Ok(Arc::new(Self { grid, bc: *bc, mac: bc.mac_ghosts(nx, ny), p: g, index, fluid, pinned, mu, mv, llt }))
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// The velocity boundaries it was built for.
+    pub fn bc(&self) -> &Boundaries {
+        &self.bc
+    }
+
+    /// Number of fluid cells (unknowns).
+    pub fn fluid_cells(&self) -> usize {
+        self.fluid
+    }
+
+    /// `out = L_m^+ rhs` on fluid cells, 0 in solid cells.
+    fn solve_slice<T: Real>(&self, rhs: &[T], out: &mut [T]) {
+        let mut b = vec![0.0; self.fluid];
+        for (k, &ix) in self.index.iter().enumerate() {
+            if ix != usize::MAX {
+                b[ix] = rhs[k].to_f64();
+            }
+        }
+        let n = self.fluid;
+        if self.pinned {
+            let mean = b.iter().sum::<f64>() / n as f64;
+            b.iter_mut().for_each(|x| *x = mean - *x);
+            b[0] = 0.0;
+            self.llt.solve_in_place(MatMut::from_column_major_slice_mut(&mut b[1..], n - 1, 1));
+            let mean = b.iter().sum::<f64>() / n as f64;
+            b.iter_mut().for_each(|x| *x -= mean);
+        } else {
+            b.iter_mut().for_each(|x| *x = -*x);
+            self.llt.solve_in_place(MatMut::from_column_major_slice_mut(&mut b, n, 1));
+        }
+        for (k, &ix) in self.index.iter().enumerate() {
+            out[k] = if ix == usize::MAX { T::zero() } else { T::c(b[ix]) };
+        }
+    }
+
+    fn fixed(&self) -> (bool, bool) {
+        (self.mac.u_fixed.is_some(), self.mac.v_fixed.is_some())
+    }
+
+    /// Multiplies a `[2, ny, nx]` slice by the open-face masks.
+    fn mask<T: Real>(&self, x: &mut [T]) {
+        let (xu, xv) = x.split_at_mut(self.grid.cells());
+        for (e, &m) in xu.iter_mut().zip(&self.mu).chain(xv.iter_mut().zip(&self.mv)) {
+            if m == 0.0 {
+                *e = T::zero();
+            }
+        }
+    }
+}
+
+/// Removes the divergent part of `u` in the fluid and zeroes the normal velocity on every face
+/// that touches an obstacle. Differentiable; the backward is one adjoint solve with the same
+/// factor.
+pub fn make_incompressible_masked(u: &MacField, solver: &Arc<MaskedPressureSolver>) -> Result<MacField> {
+    if u.grid() != solver.grid() || u.bc() != solver.bc() {
+        return Err(Error::Invalid {
+            field: "solver",
+            reason: "the masked pressure solver was built for another grid or other boundaries".into(),
+        });
+    }
+    Ok(MacField::from_parts(MaskedProjection(solver.clone()).apply(u.values())?, *u.grid(), *u.bc()))
+}
+
+/// The masked projection as a custom op.
+#[derive(Clone)]
+pub(crate) struct MaskedProjection(pub Arc<MaskedPressureSolver>);
+
+impl MaskedProjection {
+    pub(crate) fn apply(&self, u: &Tensor) -> candle_core::Result<Tensor> {
+        apply1(u, self.clone())
+    }
+}
+
+impl Kernel1 for MaskedProjection {
+    fn name(&self) -> &'static str {
+        "make_incompressible_masked"
+    }
+    fn output_shape(&self, s: &Shape) -> candle_core::Result<Shape> {
+        let (_, c, ny, nx) = s.dims4()?;
+        if (c, ny, nx) != (2, self.0.grid.ny, self.0.grid.nx) {
+            candle_core::bail!("make_incompressible_masked: {s:?} is not a MAC velocity on the solver's grid");
+        }
+        Ok(s.clone())
+    }
+    fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+        let s = &*self.0;
+        let (nx, ny) = (s.grid.nx, s.grid.ny);
+        let (n, pn) = (nx * ny, (nx + 2) * (ny + 2));
+        let (idx, idy) = (T::c(1.0 / s.grid.dx()), T::c(1.0 / s.grid.dy()));
+        let (mut a, mut b, mut c) = (zeros::<T>(pn), zeros::<T>(pn), zeros::<T>(pn));
+        let (mut div, mut p, mut g) = (zeros::<T>(n), zeros::<T>(n), zeros::<T>(2 * n));
+        for (xb, ob) in x.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
+            ob.copy_from_slice(xb);
+            set_fixed(ob, nx, ny, s.mac.u_fixed.map(T::c), s.mac.v_fixed.map(T::c));
+            s.mask(ob);
+            pad(&ob[..n], nx, ny, &s.mac.u, true, &mut a);
+            pad(&ob[n..], nx, ny, &s.mac.v, true, &mut b);
+            div_padded(&a, &b, nx, ny, idx, idy, &mut div);
+            s.solve_slice(&div, &mut p);
+            pad(&p, nx, ny, &s.p, true, &mut c);
+            let (gu, gv) = g.split_at_mut(n);
+            grad_padded(&c, nx, ny, idx, idy, s.fixed(), gu, gv);
+            s.mask(&mut g);
+            for (o, &gg) in ob.iter_mut().zip(g.iter()) {
+                *o -= gg;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Op1 for MaskedProjection {
+    fn backward(&self, _x: &Tensor, _y: &Tensor, gy: &Tensor) -> candle_core::Result<Tensor> {
+        apply_kernel1(gy, MaskedProjectionAdjoint(self.clone()))
+    }
+}
+
+struct MaskedProjectionAdjoint(MaskedProjection);
+
+impl Kernel1 for MaskedProjectionAdjoint {
+    fn name(&self) -> &'static str {
+        "make_incompressible_masked_adjoint"
+    }
+    fn output_shape(&self, s: &Shape) -> candle_core::Result<Shape> {
+        Ok(s.clone())
+    }
+    fn forward<T: Real>(&self, g: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+        let s = &*self.0 .0;
+        let (nx, ny) = (s.grid.nx, s.grid.ny);
+        let (n, pn) = (nx * ny, (nx + 2) * (ny + 2));
+        let (idx, idy) = (T::c(1.0 / s.grid.dx()), T::c(1.0 / s.grid.dy()));
+        let (mut a, mut b, mut c) = (zeros::<T>(pn), zeros::<T>(pn), zeros::<T>(pn));
+        let (mut d, mut p, mut h) = (zeros::<T>(n), zeros::<T>(n), zeros::<T>(2 * n));
+        for (gb, ob) in g.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
+            h.copy_from_slice(gb);
+            s.mask(&mut h);
+            c.fill(T::zero());
+            grad_padded_adjoint(&h[..n], &h[n..], nx, ny, idx, idy, s.fixed(), &mut c);
+            pad_adjoint(&mut c, nx, ny, &s.p, &mut d);
+            s.solve_slice(&d, &mut p);
+            a.fill(T::zero());
+            b.fill(T::zero());
+            div_padded_adjoint(&p, nx, ny, idx, idy, &mut a, &mut b);
+            let (ou, ov) = ob.split_at_mut(n);
+            pad_adjoint(&mut a, nx, ny, &s.mac.u, ou);
+            pad_adjoint(&mut b, nx, ny, &s.mac.v, ov);
+            for (o, &gv) in ob.iter_mut().zip(gb) {
+                *o = gv - *o;
+            }
+            s.mask(ob);
+            let z = Some(T::zero());
+            set_fixed(ob, nx, ny, s.mac.u_fixed.and(z), s.mac.v_fixed.and(z));
+        }
+        Ok(())
+    }
+}
