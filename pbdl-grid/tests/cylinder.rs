@@ -1,63 +1,64 @@
-//! Flow past a cylinder at Re = 100 in the confined channel of the DFG benchmark 2D-2:
-//! M. Schäfer and S. Turek, "Benchmark computations of laminar flow around a cylinder", in Flow
-//! Simulation with High-Performance Computers II, Notes Numer. Fluid Mech. 52, Vieweg (1996),
-//! pp. 547-566. Channel 2.2 x 0.41, cylinder D = 0.1 centred at (0.2, 0.2) (blockage
-//! D/H = 0.24), parabolic inflow with Um = 1.5 (mean 1.0), nu = 1e-3, so Re = U_mean D / nu = 100;
-//! their reference Strouhal number St = D f / U_mean is 0.2950 - 0.3050 (0.3 +- 0.005).
+//! Flow past a cylinder at Re = U D / nu = 100: periodic vortex shedding and its Strouhal number
+//! `St = f D / U`.
 //!
-//! Setup here: no-slip walls, uniform inflow 1.0 on the inlet face with the parabolic profile
-//! imposed on the first faces by a velocity source (same flux), outflow on the right, a
-//! staircase cylinder (cells whose centres lie inside), MacCormack advection, backward-Euler
-//! viscosity, masked projection. The shedding frequency is measured from the upward zero
-//! crossings of the transverse velocity at a probe 1.5 D behind the cylinder.
+//! Reference: C. H. K. Williamson, "Vortex dynamics in the cylinder wake", Annu. Rev. Fluid
+//! Mech. 28 (1996) 477-539: St = 0.164-0.165 at Re = 100 for the unconfined cylinder (his fit
+//! St = -3.3265/Re + 0.1816 + 1.6e-4 Re gives 0.1649). Our blockage: free-slip lateral walls
+//! 16 D from the axis (D/H = 1/32), close enough to unconfined that the test asks for 5% of
+//! 0.165. (Measured here with walls 8 D away, D/H = 1/16: St = 0.1716 at 8 cells/D and 0.1734
+//! at 10 cells/D, 4-5% above the unconfined value, the expected sign of a blockage effect.)
+//!
+//! Setup: domain 32 D x 32 D, cylinder centre 8 D behind the uniform inflow (U = 1) on the axis,
+//! outflow on the right, a staircase cylinder (cells whose centres lie inside), MacCormack or
+//! central flux form + RK4, masked projection. A small transverse kick behind the cylinder
+//! starts the shedding. The frequency is measured from the upward zero crossings of the
+//! transverse velocity at a probe 1.5 D behind the cylinder over the second half of the run.
 
 use candle_core::DType;
 use pbdl_grid::fluid::Advection;
-use pbdl_grid::forcing::VelocitySource;
-use pbdl_grid::{Bc, Boundaries, Fluid, FluidConfig, Grid, MacField, Obstacle};
+use pbdl_grid::{Bc, Boundaries, Fluid, FluidConfig, FluidState, Grid, MacField, Obstacle};
 
-const H: f64 = 0.41;
-const D: f64 = 0.1;
-const UM: f64 = 1.5;
+const D: f64 = 1.0;
+const NU: f64 = 0.01;
+const LX: f64 = 32.0;
+const LY: f64 = 32.0;
+const CX: f64 = 8.0;
+const CY: f64 = 16.0;
 
 struct Wake {
-    /// Strouhal number from the last periods (NaN when fewer than 3 crossings).
+    /// Strouhal number over the second half (NaN when fewer than 3 crossings).
     st: f64,
     /// Peak-to-peak transverse probe velocity over the last third of the run.
     amplitude: f64,
     periods: usize,
 }
 
-fn run(cells_per_d: usize, t_end: f64, cfl_umax: f64, advection: Advection) -> Wake {
+fn run(cells_per_d: usize, t_end: f64, cfl: f64, advection: Advection) -> Wake {
     let dx = D / cells_per_d as f64;
-    let (nx, ny) = ((2.2 / dx).round() as usize, (H / dx).round() as usize);
-    let grid = Grid::new(nx, ny, 2.2, H).unwrap();
-    let bc = Boundaries::new(Bc::Inflow { velocity: [1.0, 0.0] }, Bc::Outflow, Bc::NoSlip, Bc::NoSlip).unwrap();
-    let dt = cfl_umax * dx / 2.0;
+    let (nx, ny) = ((LX / dx).round() as usize, (LY / dx).round() as usize);
+    let grid = Grid::new(nx, ny, LX, LY).unwrap();
+    let bc = Boundaries::new(Bc::Inflow { velocity: [1.0, 0.0] }, Bc::Outflow, Bc::FreeSlip, Bc::FreeSlip).unwrap();
+    // Speeds near the cylinder reach ~1.5 U.
+    let dt = cfl * dx / 1.5;
     let cfg = FluidConfig {
         dt,
-        nu: 1e-3,
+        nu: NU,
         advection,
         density_advection: Advection::MacCormack,
         buoyancy: None,
         inflow: None,
-        obstacles: vec![Obstacle::Cylinder { center: [0.2, 0.2], radius: D / 2.0 }],
+        obstacles: vec![Obstacle::Cylinder { center: [CX, CY], radius: D / 2.0 }],
     };
-    let profile = |_x: f64, y: f64| [4.0 * UM * y * (H - y) / (H * H), 0.0];
-    let inlet =
-        VelocitySource::new(grid, &bc, Obstacle::Box { lo: [0.0, 0.0], hi: [2.0 * dx + 1e-12, H] }, profile).unwrap();
-    let fluid = Fluid::new(grid, bc, None, cfg).unwrap().with_velocity_source(inlet);
-    // Start from the parabolic profile everywhere with a small transverse kick behind the
-    // cylinder, so shedding starts within a few convective times.
+    let fluid = Fluid::new(grid, bc, None, cfg).unwrap();
     let u0 = MacField::from_fn(grid, bc, DType::F64, |x, y| {
-        let kick = if (x - 0.35).abs() < 0.05 && (y - 0.25).abs() < 0.05 { 0.3 } else { 0.0 };
-        [profile(x, y)[0], kick]
+        let kick = if (x - CX - 1.5).abs() < 0.5 && (y - CY - 0.5).abs() < 0.5 { 0.3 } else { 0.0 };
+        [1.0, kick]
     })
     .unwrap();
-    let mut s = pbdl_grid::FluidState { velocity: fluid.project(&u0).unwrap(), density: None };
+    let mut s = FluidState { velocity: fluid.project(&u0).unwrap(), density: None };
     let steps = (t_end / dt).round() as usize;
-    // Probe: v face nearest to (0.35, 0.2).
-    let (pi, pj) = ((0.35 / dx - 0.5).round() as usize, (0.2 / dx - 1.0).round() as usize);
+    // Probe: the v face nearest to (CX + 1.5 D, CY).
+    let (pi, pj) = (((CX + 1.5) / dx - 0.5).round() as usize, (CY / dx - 1.0).round() as usize);
     let mut signal = Vec::with_capacity(steps);
     for _ in 0..steps {
         s = fluid.step(&s, None).unwrap();
@@ -67,7 +68,7 @@ fn run(cells_per_d: usize, t_end: f64, cfl_umax: f64, advection: Advection) -> W
     }
     let tail = &signal[2 * steps / 3..];
     let amplitude = tail.iter().cloned().fold(f64::MIN, f64::max) - tail.iter().cloned().fold(f64::MAX, f64::min);
-    // Upward zero crossings (about the tail mean) in the second half, linearly interpolated.
+    // Upward zero crossings about the mean of the second half, linearly interpolated.
     let half = &signal[steps / 2..];
     let mean = half.iter().sum::<f64>() / half.len() as f64;
     let mut cross = Vec::new();
@@ -84,27 +85,37 @@ fn run(cells_per_d: usize, t_end: f64, cfl_umax: f64, advection: Advection) -> W
         (f64::NAN, 0)
     };
     eprintln!(
-        "cylinder Re=100, {advection:?}, {cells_per_d} cells/D ({nx}x{ny}), dt {dt:.2e}, t_end {t_end}: St = {st:.4}, periods {periods}, probe v peak-to-peak {amplitude:.3}"
+        "cylinder Re=100, {advection:?}, {cells_per_d} cells/D ({nx}x{ny}), dt {dt:.3e}, t_end {t_end}: St = {st:.4}, periods {periods}, probe v peak-to-peak {amplitude:.3}"
     );
     Wake { st, amplitude, periods }
 }
 
-/// Short default check (coarse, 8 cells per D, t = 6): the wake sheds, the transverse velocity
-/// oscillates with a clear amplitude and a Strouhal number in a broad band around the reference.
+/// Short default check (coarse: 4 cells per D, t = 120 D/U): the wake sheds, the transverse
+/// velocity oscillates with a clear amplitude and St lies in a broad band around 0.165.
 #[test]
 fn cylinder_wake_sheds_vortices() {
-    let w = run(8, 6.0, 2.0, Advection::MacCormack);
-    assert!(w.amplitude > 0.2, "no shedding: probe amplitude {}", w.amplitude);
+    let w = run(4, 120.0, 1.5, Advection::MacCormack);
+    assert!(w.amplitude > 0.1, "no shedding: probe amplitude {}", w.amplitude);
     assert!(w.periods >= 4, "too few periods: {}", w.periods);
-    assert!((0.2..0.4).contains(&w.st), "St {}", w.st);
+    assert!((0.12..0.22).contains(&w.st), "St {}", w.st);
 }
 
-/// The accuracy check (slow): 20 cells per D, t = 8; St within 5% of Schäfer & Turek's 0.300.
+/// The accuracy check (slow, ~5 min in release): 8 cells per D, t = 200 D/U, central flux
+/// form + RK4; St within 5% of Williamson's 0.165.
 #[test]
 #[ignore = "slow: run with --ignored (cargo xtask stress)"]
-fn cylinder_strouhal_number_matches_schafer_turek() {
-    let w = run(20, 8.0, 0.7, Advection::CentralRk4);
-    let st_ref = 0.300;
-    assert!(w.periods >= 8, "too few periods: {}", w.periods);
+fn cylinder_strouhal_number_matches_williamson() {
+    let w = run(8, 200.0, 0.7, Advection::CentralRk4);
+    let st_ref = 0.165;
+    assert!(w.periods >= 10, "too few periods: {}", w.periods);
     assert!((w.st - st_ref).abs() <= 0.05 * st_ref, "St = {:.4}, reference {st_ref} +- 5%", w.st);
+}
+
+#[test]
+#[ignore = "exploration: CELLS, TEND, ADV=mc|rk4"]
+fn cylinder_explore() {
+    let cells: usize = std::env::var("CELLS").ok().and_then(|v| v.parse().ok()).unwrap_or(8);
+    let t: f64 = std::env::var("TEND").ok().and_then(|v| v.parse().ok()).unwrap_or(150.0);
+    let adv = if std::env::var("ADV").as_deref() == Ok("mc") { Advection::MacCormack } else { Advection::CentralRk4 };
+    run(cells, t, if adv == Advection::MacCormack { 1.5 } else { 0.7 }, adv);
 }

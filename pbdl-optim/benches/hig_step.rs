@@ -1,0 +1,34 @@
+//! Criterion: one HIG step on the nonlinear oscillators (b = 128, J is 512 x 2956), split into
+//! the composed Jacobian and the whole step (Jacobian + SVD + update). Goal: <= 0.3 s on 2 threads.
+//!
+//! `cargo bench -p pbdl-optim --bench hig_step`
+#![allow(missing_docs)] // criterion_group! generates an undocumented function
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use pbdl_optim::hig::{composed_jacobian, HigConfig, HigTrainer};
+use pbdl_optim::mlp::{Activation, Mlp};
+use pbdl_optim::physics::{Dataset, Oscillators};
+
+fn hig_step_oscillators(c: &mut Criterion) {
+    let physics = Oscillators::nonlinear();
+    let data = Dataset::return_to_start(128, 4, 1);
+    let net = Mlp::new(&[4, 20, 20, 20, 96], Activation::Relu, 2).expect("net");
+    let mut group = c.benchmark_group("hig_oscillators");
+    group.sample_size(10);
+    group.bench_function("composed_jacobian_f64_j512x2956", |b| {
+        b.iter(|| composed_jacobian(&net, &physics, data.all()).expect("jacobian"))
+    });
+    let mut trainer = HigTrainer::new(HigConfig::hig(1.0, 1e-6)).expect("trainer");
+    let mut stepped = net.clone();
+    group.bench_function("hig_step_f64_j512x2956", |b| {
+        b.iter(|| {
+            // Restart from the same parameters so every iteration does the same work.
+            stepped.set_params(net.params()).expect("params");
+            trainer.step(&mut stepped, &physics, data.all()).expect("step")
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, hig_step_oscillators);
+criterion_main!(benches);

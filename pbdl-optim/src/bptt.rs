@@ -1,0 +1,133 @@
+//! Stabilized backpropagation through time (Schnell & Thuerey, ICLR 2024): gradient modes for
+//! any differentiable rollout `s_{n+1} = P(s_n, N(s_n; theta))` written with candle tensors.
+//!
+//! | mode | gradient paths kept |
+//! |---|---|
+//! | [`GradientMode::F`] | all (regular BPTT) |
+//! | [`GradientMode::P`] | the physics path only: the network sees `stop(s_n)` |
+//! | [`GradientMode::S`] | neither: `P(stop(s_n), N(stop(s_n)))`, each control acts only on its own step |
+//! | [`GradientMode::C`] | component-wise combination: `g = g_P` where `sign(g_P) = sign(g_F)`, else `0` (two backward passes) |
+//!
+//! The combined gradient can then be clipped by value or global norm
+//! ([`pbdl_core::train::ClipConfig`]) before it is fed to an optimiser.
+//!
+//! ```
+//! use candle_core::{Device, Tensor, Var};
+//! use pbdl_core::train::ClipConfig;
+//! use pbdl_optim::bptt::{gradients, GradientMode};
+//!
+//! // s_{n+1} = 0.9 s_n + u_n, u_n = w s_n, loss s_N^2.
+//! let w = Var::new(&[-0.5f64], &Device::Cpu)?;
+//! let s0 = Tensor::new(&[1.0f64], &Device::Cpu)?;
+//! let net = |s: &Tensor| s.mul(w.as_tensor());
+//! let physics = |s: &Tensor, u: &Tensor| (s * 0.9)? + u;
+//! let loss = |traj: &[Tensor]| traj.last().unwrap().sqr()?.sum_all();
+//! let out = gradients(GradientMode::C, std::slice::from_ref(&w), &s0, 4, &net, &physics, &loss, &ClipConfig::Norm { max_norm: 1.0 })?;
+//! assert!(out.grads.get(w.as_tensor()).is_some());
+//! # Ok::<(), pbdl_optim::Error>(())
+//! ```
+
+use crate::error::Result;
+use candle_core::backprop::GradStore;
+use candle_core::{Tensor, Var};
+use pbdl_core::train::ClipConfig;
+use serde::{Deserialize, Serialize};
+
+/// Which gradient paths of a rollout are kept; see the module docs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum GradientMode {
+    /// Regular BPTT.
+    F,
+    /// Network input stopped: feedback only along the physics path.
+    P,
+    /// Both paths stopped.
+    S,
+    /// Component-wise combination of `P` and `F` (the paper's method).
+    C,
+}
+
+/// Runs `steps` steps of `s_{n+1} = physics(s_n, net(s_n))` with the stops of `mode`
+/// (`C` rolls out like `P`; use [`gradients`] for its gradient). Returns `[s_0, ..., s_N]`.
+pub fn rollout(
+    mode: GradientMode,
+    s0: &Tensor,
+    steps: usize,
+    net: &dyn Fn(&Tensor) -> candle_core::Result<Tensor>,
+    physics: &dyn Fn(&Tensor, &Tensor) -> candle_core::Result<Tensor>,
+) -> Result<Vec<Tensor>> {
+    let (stop_net, stop_phys) = match mode {
+        GradientMode::F => (false, false),
+        GradientMode::P | GradientMode::C => (true, false),
+        GradientMode::S => (true, true),
+    };
+    let mut traj = vec![s0.clone()];
+    for _ in 0..steps {
+        let s = traj.last().expect("non-empty");
+        let u = if stop_net { net(&s.detach())? } else { net(s)? };
+        let next = if stop_phys { physics(&s.detach(), &u)? } else { physics(s, &u)? };
+        traj.push(next);
+    }
+    Ok(traj)
+}
+
+/// The result of [`gradients`].
+#[derive(Debug)]
+pub struct BpttGradients {
+    /// The loss of the rollout (the same in every mode: stops do not change values).
+    pub loss: f64,
+    /// Gradients of the vars, combined (mode C) and clipped.
+    pub grads: GradStore,
+    /// Global norm before clipping.
+    pub norm_before_clip: f64,
+    /// Mode C only: fraction of components whose signs of `g_P` and `g_F` agreed.
+    pub agreement: Option<f64>,
+}
+
+fn sign(t: &Tensor) -> candle_core::Result<Tensor> {
+    t.gt(0.0)?.to_dtype(t.dtype())? - t.lt(0.0)?.to_dtype(t.dtype())?
+}
+
+/// Gradients of `loss(rollout)` with respect to `vars` in `mode`, then clipped by `clip`.
+pub fn gradients(
+    mode: GradientMode,
+    vars: &[Var],
+    s0: &Tensor,
+    steps: usize,
+    net: &dyn Fn(&Tensor) -> candle_core::Result<Tensor>,
+    physics: &dyn Fn(&Tensor, &Tensor) -> candle_core::Result<Tensor>,
+    loss: &dyn Fn(&[Tensor]) -> candle_core::Result<Tensor>,
+    clip: &ClipConfig,
+) -> Result<BpttGradients> {
+    let run = |m: GradientMode| -> Result<(f64, GradStore)> {
+        let traj = rollout(m, s0, steps, net, physics)?;
+        let l = loss(&traj)?;
+        let value = l.to_dtype(candle_core::DType::F64)?.to_scalar::<f64>()?;
+        Ok((value, l.backward()?))
+    };
+    let (value, mut grads, agreement) = match mode {
+        GradientMode::C => {
+            let (value, mut gp) = run(GradientMode::P)?;
+            let (_, gf) = run(GradientMode::F)?;
+            let (mut agree, mut total) = (0.0, 0usize);
+            for v in vars {
+                let t = v.as_tensor();
+                let (Some(p), Some(f)) = (gp.get(t).cloned(), gf.get(t)) else { continue };
+                let mask = sign(&p)?.eq(&sign(f)?)?;
+                agree += mask.to_dtype(candle_core::DType::F64)?.sum_all()?.to_scalar::<f64>()?;
+                total += mask.elem_count();
+                let combined = mask.where_cond(&p, &p.zeros_like()?)?;
+                gp.insert(t, combined);
+            }
+            (value, gp, Some(if total == 0 { 1.0 } else { agree / total as f64 }))
+        }
+        m => {
+            let (value, g) = run(m)?;
+            (value, g, None)
+        }
+    };
+    if !value.is_finite() {
+        return Err(crate::Error::Diverged { step: 0, loss: value, last_good: 0 });
+    }
+    let norm_before_clip = clip.apply(&mut grads, vars)?;
+    Ok(BpttGradients { loss: value, grads, norm_before_clip, agreement })
+}

@@ -1,0 +1,344 @@
+//! Training a network through a physics model: HIG / Gauss-Newton steps, an Adam baseline
+//! with the same exact gradients, evaluation, and loss-against-wall-clock curves.
+//!
+//! Conventions (the HIG paper's code and the pbdl-book): the batch loss is
+//! `L = sum_s ||y_s - y*_s||^2` (no 1/2), the reported loss is `L / b` (mean over samples), and
+//! the HIG right-hand side is `g = d(L/b)/dy = 2 (y - y*) / b`, flattened sample after sample.
+
+use super::solve::{HalfInverse, HigConfig, SolveInfo};
+use crate::error::{check_len, Error, Result};
+use crate::mlp::{Mlp, MlpCache};
+use crate::physics::{Batch, Dataset, Physics};
+use candle_core::{Device, Tensor, Var};
+use candle_nn::Optimizer;
+use faer::{MatRef, Par};
+use pbdl_core::train::{AdamConfig, Optim, OptimizerConfig};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Runs the network on a batch and the physics (with its Jacobian) on every sample, in
+/// parallel. Fills `y: [b, ny]` and `jp: [b, ny, nu]`.
+fn forward_with_physics_jacobian(
+    net: &Mlp,
+    physics: &dyn Physics,
+    batch: Batch<'_>,
+    cache: &mut MlpCache,
+    y: &mut Vec<f64>,
+    jp: &mut Vec<f64>,
+) -> Result<()> {
+    let (b, nu, ny, nx) = (batch.len, physics.control_dim(), physics.output_dim(), physics.context_dim());
+    check_len("network output width vs physics control length", nu, net.out_dim())?;
+    check_len("batch targets length", b * ny, batch.targets.len())?;
+    check_len("batch contexts length", b * nx, batch.contexts.len())?;
+    net.forward(batch.inputs, b, cache)?;
+    let u = cache.output();
+    y.resize(b * ny, 0.0);
+    jp.resize(b * ny * nu, 0.0);
+    y.par_chunks_mut(ny).zip(jp.par_chunks_mut(ny * nu)).enumerate().try_for_each(|(s, (ys, js))| {
+        physics.jacobian(&batch.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], ys, js)
+    })
+}
+
+/// Loss `sum_s ||y_s - y*_s||^2 / b` and its gradient `g = 2 (y - y*) / b`.
+fn loss_and_gradient(y: &[f64], target: &[f64], b: usize, g: &mut Vec<f64>) -> f64 {
+    g.resize(y.len(), 0.0);
+    let inv_b = 1.0 / b as f64;
+    let mut loss = 0.0;
+    for ((gi, yi), ti) in g.iter_mut().zip(y).zip(target) {
+        let r = yi - ti;
+        loss += r * r;
+        *gi = 2.0 * r * inv_b;
+    }
+    loss * inv_b
+}
+
+/// The exact composed Jacobian `J = J_phys J_net` of a batch, `[b * ny, n_params]` row-major
+/// (row `s * ny + k` is output component `k` of sample `s`), with the outcomes `y`.
+///
+/// Each row is one backward pass through the network with the physics Jacobian's row as the
+/// cotangent: no finite differences anywhere.
+pub fn composed_jacobian(net: &Mlp, physics: &dyn Physics, batch: Batch<'_>) -> Result<(Vec<f64>, Vec<f64>)> {
+    let mut ws = Workspace::default();
+    forward_with_physics_jacobian(net, physics, batch, &mut ws.cache, &mut ws.y, &mut ws.jp)?;
+    let rows = batch.len * physics.output_dim();
+    let mut j = vec![0.0; rows * net.n_params()];
+    net.jacobian_rows(&ws.cache, &ws.jp, physics.output_dim(), &mut j)?;
+    Ok((j, ws.y))
+}
+
+#[derive(Debug, Default)]
+struct Workspace {
+    cache: MlpCache,
+    y: Vec<f64>,
+    jp: Vec<f64>,
+    g: Vec<f64>,
+}
+
+/// What one training step did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepInfo {
+    /// Step index (0-based).
+    pub step: u64,
+    /// Batch loss per sample *before* the update.
+    pub loss: f64,
+    /// The SVD's numbers (HIG/GN only).
+    pub solve: Option<SolveInfo>,
+}
+
+/// HIG (or Gauss-Newton, exponent 1) training: exact composed Jacobian, half-inverse solve,
+/// plain SGD step. Buffers are kept across steps.
+#[derive(Debug)]
+pub struct HigTrainer {
+    cfg: HigConfig,
+    solver: HalfInverse,
+    ws: Workspace,
+    jac: Vec<f64>,
+    dtheta: Vec<f64>,
+    step: u64,
+}
+
+impl HigTrainer {
+    /// A trainer with the given settings; faer runs on the global rayon pool.
+    pub fn new(cfg: HigConfig) -> Result<Self> {
+        Self::with_par(cfg, Par::rayon(0))
+    }
+
+    /// A trainer whose SVD uses `par`.
+    pub fn with_par(cfg: HigConfig, par: Par) -> Result<Self> {
+        cfg.validate()?;
+        Ok(Self {
+            cfg,
+            solver: HalfInverse::new(0, 0, par),
+            ws: Workspace::default(),
+            jac: Vec::new(),
+            dtheta: Vec::new(),
+            step: 0,
+        })
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &HigConfig {
+        &self.cfg
+    }
+
+    /// The solver (singular values and vectors of the last step).
+    pub fn solver(&self) -> &HalfInverse {
+        &self.solver
+    }
+
+    /// One step on `batch`: `theta -= eta V diag(s^-kappa) U^T g`.
+    ///
+    /// A non-finite loss returns [`Error::Diverged`] before the update, so `net` keeps the
+    /// parameters of the last good step.
+    pub fn step(&mut self, net: &mut Mlp, physics: &dyn Physics, batch: Batch<'_>) -> Result<StepInfo> {
+        let ws = &mut self.ws;
+        forward_with_physics_jacobian(net, physics, batch, &mut ws.cache, &mut ws.y, &mut ws.jp)?;
+        let loss = loss_and_gradient(&ws.y, batch.targets, batch.len, &mut ws.g);
+        if !loss.is_finite() {
+            return Err(Error::Diverged { step: self.step, loss, last_good: self.step.saturating_sub(1) });
+        }
+        let (rows, p) = (batch.len * physics.output_dim(), net.n_params());
+        self.jac.resize(rows * p, 0.0);
+        net.jacobian_rows(&ws.cache, &ws.jp, physics.output_dim(), &mut self.jac)?;
+        self.dtheta.resize(p, 0.0);
+        let j = MatRef::from_row_major_slice(&self.jac, rows, p);
+        let info = self.solver.solve(&self.cfg, j, &ws.g, &mut self.dtheta)?;
+        let eta = self.cfg.eta;
+        net.params_mut().iter_mut().zip(&self.dtheta).for_each(|(t, d)| *t -= eta * d);
+        let out = StepInfo { step: self.step, loss, solve: Some(info) };
+        self.step += 1;
+        Ok(out)
+    }
+}
+
+/// The Adam baseline: the exact loss gradient `sum_s J_net,s^T J_phys,s^T g_s` (ordinary
+/// backprop through the same network and physics), updated by pbdl-core's Adam.
+pub struct AdamTrainer {
+    opt: Optim,
+    theta: Var,
+    ws: Workspace,
+    cot: Vec<f64>,
+    grad: Vec<f64>,
+    step: u64,
+}
+
+impl std::fmt::Debug for AdamTrainer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AdamTrainer").field("step", &self.step).finish()
+    }
+}
+
+impl AdamTrainer {
+    /// Adam with learning rate `lr` (other settings at their defaults) for `net`'s parameters.
+    pub fn new(net: &Mlp, lr: f64) -> Result<Self> {
+        let theta = Var::from_slice(net.params(), net.n_params(), &Device::Cpu)?;
+        let opt = OptimizerConfig::Adam(AdamConfig { lr, ..Default::default() }).build(vec![theta.clone()])?;
+        Ok(Self { opt, theta, ws: Workspace::default(), cot: Vec::new(), grad: Vec::new(), step: 0 })
+    }
+
+    /// One Adam step on `batch`. The network's parameters must not be changed elsewhere
+    /// between steps (Adam keeps its own copy and its moments).
+    pub fn step(&mut self, net: &mut Mlp, physics: &dyn Physics, batch: Batch<'_>) -> Result<StepInfo> {
+        let ws = &mut self.ws;
+        forward_with_physics_jacobian(net, physics, batch, &mut ws.cache, &mut ws.y, &mut ws.jp)?;
+        let loss = loss_and_gradient(&ws.y, batch.targets, batch.len, &mut ws.g);
+        if !loss.is_finite() {
+            return Err(Error::Diverged { step: self.step, loss, last_good: self.step.saturating_sub(1) });
+        }
+        // Physics VJP per sample: cot_s = J_phys,s^T g_s.
+        let (ny, nu) = (physics.output_dim(), physics.control_dim());
+        self.cot.resize(batch.len * nu, 0.0);
+        for s in 0..batch.len {
+            let c = &mut self.cot[s * nu..(s + 1) * nu];
+            c.fill(0.0);
+            for k in 0..ny {
+                let gk = ws.g[s * ny + k];
+                let row = &ws.jp[(s * ny + k) * nu..(s * ny + k + 1) * nu];
+                c.iter_mut().zip(row).for_each(|(ci, j)| *ci += gk * j);
+            }
+        }
+        self.grad.resize(net.n_params(), 0.0);
+        net.gradient(&ws.cache, &self.cot, &mut self.grad)?;
+        crate::error::check_finite("loss gradient", &self.grad, 1)?;
+        // Feed the gradient to candle's optimiser: d/dtheta (theta . G) = G.
+        let g = Tensor::from_slice(&self.grad, self.grad.len(), &Device::Cpu)?;
+        let surrogate = (self.theta.as_tensor() * g)?.sum_all()?;
+        self.opt.backward_step(&surrogate)?;
+        net.set_params(&self.theta.as_tensor().to_vec1::<f64>()?)?;
+        let out = StepInfo { step: self.step, loss, solve: None };
+        self.step += 1;
+        Ok(out)
+    }
+}
+
+/// Mean loss per sample `sum_s ||P(x_s; f(i_s)) - y*_s||^2 / n` over a data set.
+pub fn evaluate(net: &Mlp, physics: &dyn Physics, data: &Dataset) -> Result<f64> {
+    let mut cache = MlpCache::default();
+    let all = data.all();
+    net.forward(all.inputs, all.len, &mut cache)?;
+    let (nu, ny, nx) = (physics.control_dim(), physics.output_dim(), physics.context_dim());
+    check_len("network output width vs physics control length", nu, net.out_dim())?;
+    let u = cache.output();
+    let total: f64 = (0..all.len)
+        .into_par_iter()
+        .map(|s| -> Result<f64> {
+            let mut y = vec![0.0; ny];
+            physics.forward(&all.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], &mut y)?;
+            Ok(y.iter().zip(&all.targets[s * ny..(s + 1) * ny]).map(|(a, b)| (a - b) * (a - b)).sum())
+        })
+        .collect::<Result<Vec<f64>>>()?
+        .into_iter()
+        .sum();
+    Ok(total / all.len as f64)
+}
+
+/// Which optimiser a [`run_curve`] uses.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Method {
+    /// HIG or Gauss-Newton with these settings.
+    Hig(HigConfig),
+    /// Adam with this learning rate.
+    Adam {
+        /// Learning rate.
+        lr: f64,
+    },
+}
+
+/// When a [`run_curve`] stops.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Budget {
+    /// Seconds of training (evaluation excluded).
+    pub seconds: f64,
+    /// At most this many steps.
+    pub max_steps: u64,
+}
+
+/// Loss against training wall-clock time.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Curve {
+    /// Training seconds at each evaluation (evaluation time excluded).
+    pub seconds: Vec<f64>,
+    /// Steps done at each evaluation.
+    pub steps: Vec<u64>,
+    /// Evaluation loss at each evaluation.
+    pub loss: Vec<f64>,
+    /// Wall-clock seconds of every training step.
+    pub step_seconds: Vec<f64>,
+}
+
+impl Curve {
+    /// The last evaluation loss.
+    pub fn final_loss(&self) -> f64 {
+        self.loss.last().copied().unwrap_or(f64::NAN)
+    }
+
+    /// Median wall-clock seconds of one training step (NaN without steps).
+    pub fn median_step_seconds(&self) -> f64 {
+        let mut t = self.step_seconds.clone();
+        if t.is_empty() {
+            return f64::NAN;
+        }
+        t.sort_by(|a, b| a.total_cmp(b));
+        let n = t.len();
+        if n % 2 == 1 {
+            t[n / 2]
+        } else {
+            0.5 * (t[n / 2 - 1] + t[n / 2])
+        }
+    }
+}
+
+/// Trains `net` with `method` and batch size `batch` over `train` (cycling through it in order),
+/// evaluating on `eval` every `eval_every` steps, until the budget is spent.
+pub fn run_curve(
+    net: &mut Mlp,
+    physics: &dyn Physics,
+    method: Method,
+    train: &Dataset,
+    eval: &Dataset,
+    batch: usize,
+    budget: Budget,
+    eval_every: u64,
+) -> Result<Curve> {
+    if batch == 0 || batch > train.len {
+        return Err(Error::shape("batch size", format!("1..={}", train.len), batch));
+    }
+    let mut curve = Curve::default();
+    curve.seconds.push(0.0);
+    curve.steps.push(0);
+    curve.loss.push(evaluate(net, physics, eval)?);
+    let mut hig = match method {
+        Method::Hig(cfg) => Some(HigTrainer::new(cfg)?),
+        Method::Adam { .. } => None,
+    };
+    let mut adam = match method {
+        Method::Adam { lr } => Some(AdamTrainer::new(net, lr)?),
+        Method::Hig(_) => None,
+    };
+    let n_batches = train.len / batch;
+    let mut elapsed = 0.0;
+    let mut step = 0u64;
+    while elapsed < budget.seconds && step < budget.max_steps {
+        let b = train.batch((step as usize % n_batches) * batch, batch);
+        let t = Instant::now();
+        match (&mut hig, &mut adam) {
+            (Some(h), _) => h.step(net, physics, b)?,
+            (_, Some(a)) => a.step(net, physics, b)?,
+            _ => unreachable!("one trainer is set"),
+        };
+        let dt = t.elapsed().as_secs_f64();
+        curve.step_seconds.push(dt);
+        elapsed += dt;
+        step += 1;
+        if step % eval_every.max(1) == 0 || elapsed >= budget.seconds || step >= budget.max_steps {
+            let loss = evaluate(net, physics, eval)?;
+            curve.seconds.push(elapsed);
+            curve.steps.push(step);
+            curve.loss.push(loss);
+            if !loss.is_finite() {
+                return Err(Error::Diverged { step, loss, last_good: step.saturating_sub(1) });
+            }
+        }
+    }
+    Ok(curve)
+}

@@ -1,0 +1,42 @@
+//! # pbdl-optim
+//!
+//! Optimisers for learning through differentiable physics.
+//!
+//! | module | what it gives you |
+//! |---|---|
+//! | [`hig`] | half-inverse gradients (HIG) and Gauss-Newton from one SVD solve ([`hig::HalfInverse`]), trainers ([`hig::HigTrainer`], [`hig::AdamTrainer`]), loss-vs-wall-clock runs |
+//! | [`mlp`] | a dense `f64` network with exact per-sample Jacobian rows ([`mlp::Mlp`]) |
+//! | [`physics`] | the [`physics::Physics`] trait (forward + exact Jacobian) and the experiments' physics: linear chain, nonlinear oscillators (RK4), Poisson 8x8 |
+//! | [`bptt`] | stabilized BPTT: gradient modes F, P, S, C for any candle rollout, with value / global-norm clipping |
+//! | [`error`] | the crate's [`Error`] |
+//! | [`tasks`] | tour and bench entries for `cargo xtask` (HIG vs Adam vs Gauss-Newton, loss vs wall-clock) |
+//!
+//! ```
+//! use pbdl_optim::hig::{evaluate, HigConfig, HigTrainer};
+//! use pbdl_optim::mlp::{Activation, Mlp};
+//! use pbdl_optim::physics::{Dataset, Oscillators};
+//!
+//! // The pbdl-book linear chain: bring two coupled oscillators back to their start in 24 RK4 steps.
+//! let physics = Oscillators::linear_chain();
+//! let data = Dataset::return_to_start(256, 4, 0);
+//! let mut net = Mlp::new(&[4, 20, 20, 20, 24], Activation::Tanh, 0)?;
+//! let before = evaluate(&net, &physics, &data)?;
+//! let mut hig = HigTrainer::new(HigConfig::hig(1.0, 1e-10))?;
+//! for step in 0..8 {
+//!     hig.step(&mut net, &physics, data.batch(32 * step, 32))?;
+//! }
+//! let after = evaluate(&net, &physics, &data)?;
+//! assert!(after < 0.1 * before, "{before} -> {after}");
+//! # Ok::<(), pbdl_optim::Error>(())
+//! ```
+#![warn(missing_docs)]
+
+pub mod bptt;
+mod entries;
+pub mod error;
+pub mod hig;
+pub mod mlp;
+pub mod physics;
+
+pub use entries::tasks;
+pub use error::{Error, Result};

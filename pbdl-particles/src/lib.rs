@@ -1,0 +1,36 @@
+//! # pbdl-particles
+//!
+//! Particle simulation for physics-based deep learning: fast fixed-radius neighbour search,
+//! SPH kernels and validated SPH solvers that generate data for particle networks.
+//!
+//! | module | what it gives you |
+//! |---|---|
+//! | [`neighbors`] | [`CellList`] (counting sort on cell keys, 1D/2D/3D, periodic or bounded, rayon), CSR [`NeighborList`] and pair lists, [`neighbors::brute_force`] |
+//! | [`kernels`] | [`Kernel`]: cubic spline, quintic, Wendland C2/C4, poly6, spiky in 1D/2D/3D with gradients |
+//! | [`riemann`] | exact Riemann solver of the 1D Euler equations ([`riemann::solve`], [`GasState`]) |
+//! | [`sph1d`] | [`Sph1d`]: compressible 1D SPH (grad-h, Monaghan viscosity), [`ShockTube`] (Sod by default), periodic boxes |
+//! | [`wcsph`] | [`Wcsph`]: 2D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, extrapolated wall particles), [`DamBreak`] (Martin & Moyce) |
+//! | [`render`] | particles splatted into pixel fields for PNG/GIF ([`render::scatter`]) |
+//! | [`mod@tasks`] | [`tasks()`]: tour (Sod, dam break), bench (neighbour search, Sod time vs error, WCSPH step), stress (dam break to T = 10, strong shocks) |
+//! | [`error`] | [`Error`], [`Result`] |
+//!
+//! Conventions: positions are slices of `[T; D]` (`T` = `f32` or `f64`); neighbour lists
+//! exclude the particle itself.
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod kernels;
+pub mod neighbors;
+pub mod render;
+pub mod riemann;
+pub mod sph1d;
+pub mod tasks;
+pub mod wcsph;
+
+pub use error::{Error, Result};
+pub use kernels::{Kernel, KernelKind};
+pub use neighbors::{CellList, Domain, NeighborList};
+pub use riemann::GasState;
+pub use sph1d::{ShockTube, Sph1d, Sph1dParams};
+pub use tasks::tasks;
+pub use wcsph::{DamBreak, Wcsph, WcsphParams};
