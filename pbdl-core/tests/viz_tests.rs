@@ -435,3 +435,16 @@ fn samples_of_every_kind() {
         assert!(img.width() >= 256 && img.height() >= 128, "{name}");
     }
 }
+
+#[test]
+fn nan_pixels_take_the_style_background_colour() {
+    let data = [0.0f64, f64::NAN, 1.0, 0.5];
+    let magenta = pbdl_core::viz::field_to_rgb(&data, 2, 2, &style(Colormap::Viridis, 1, Origin::Upper)).unwrap();
+    assert_eq!(px(&magenta, 1, 0), pbdl_core::viz::NAN_COLOR);
+    let white =
+        FieldStyle { nan_color: [255, 255, 255], origin: Origin::Upper, upscale: Some(1), ..Default::default() };
+    let img = pbdl_core::viz::field_to_rgb(&data, 2, 2, &white).unwrap();
+    assert_eq!(px(&img, 1, 0), [255, 255, 255]);
+    // Finite values keep their colormap colour.
+    assert_eq!(px(&img, 0, 0), px(&magenta, 0, 0));
+}

@@ -1,11 +1,13 @@
 //! Criterion: one HIG step on the nonlinear oscillators (b = 128, J is 512 x 2956), split into
-//! the composed Jacobian and the whole step (Jacobian + SVD + update). Goal: <= 0.3 s on 2 threads.
+//! the composed Jacobian, the solve alone (thin SVD vs eigendecomposition of `J J^T`) and the
+//! whole step (Jacobian + solve + update) for both decompositions. Goal: <= 0.3 s on 2 threads.
 //!
 //! `cargo bench -p pbdl-optim --bench hig_step`
 #![allow(missing_docs)] // criterion_group! generates an undocumented function
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use pbdl_optim::hig::{composed_jacobian, HigConfig, HigTrainer};
+use faer::{MatRef, Par};
+use pbdl_optim::hig::{composed_jacobian, Decomposition, HalfInverse, HigConfig, HigTrainer};
 use pbdl_optim::mlp::{Activation, Mlp};
 use pbdl_optim::physics::{Dataset, Oscillators};
 
@@ -18,15 +20,27 @@ fn hig_step_oscillators(c: &mut Criterion) {
     group.bench_function("composed_jacobian_f64_j512x2956", |b| {
         b.iter(|| composed_jacobian(&net, &physics, data.all()).expect("jacobian"))
     });
-    let mut trainer = HigTrainer::new(HigConfig::hig(1.0, 1e-6)).expect("trainer");
-    let mut stepped = net.clone();
-    group.bench_function("hig_step_f64_j512x2956", |b| {
-        b.iter(|| {
-            // Restart from the same parameters so every iteration does the same work.
-            stepped.set_params(net.params()).expect("params");
-            trainer.step(&mut stepped, &physics, data.all()).expect("step")
-        })
-    });
+    let (jac, y) = composed_jacobian(&net, &physics, data.all()).expect("jacobian");
+    let (rows, cols) = (y.len(), net.n_params());
+    let j = MatRef::from_row_major_slice(&jac, rows, cols);
+    let g: Vec<f64> = y.iter().zip(data.all().targets).map(|(a, t)| 2.0 * (a - t) / 128.0).collect();
+    for (name, dec) in [("svd", Decomposition::Svd), ("eigen_jjt", Decomposition::Eigen)] {
+        let cfg = HigConfig::hig(1.0, 1e-6).with_decomposition(dec);
+        let mut solver = HalfInverse::new(rows, cols, Par::rayon(0));
+        let mut out = vec![0.0; cols];
+        group.bench_function(format!("solve_{name}_f64_j512x2956"), |b| {
+            b.iter(|| solver.solve(&cfg, j, &g, &mut out).expect("solve"))
+        });
+        let mut trainer = HigTrainer::new(cfg).expect("trainer");
+        let mut stepped = net.clone();
+        group.bench_function(format!("hig_step_{name}_f64_j512x2956"), |b| {
+            b.iter(|| {
+                // Restart from the same parameters so every iteration does the same work.
+                stepped.set_params(net.params()).expect("params");
+                trainer.step(&mut stepped, &physics, data.all()).expect("step")
+            })
+        });
+    }
     group.finish();
 }
 

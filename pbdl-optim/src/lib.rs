@@ -8,6 +8,7 @@
 //! | [`mlp`] | a dense `f64` network with exact per-sample Jacobian rows ([`mlp::Mlp`]) |
 //! | [`physics`] | the [`physics::Physics`] trait (forward + exact Jacobian) and the experiments' physics: linear chain, nonlinear oscillators (RK4), Poisson 8x8 |
 //! | [`bptt`] | stabilized BPTT: gradient modes F, P, S, C for any candle rollout, with value / global-norm clipping |
+//! | [`cartpole`] | cart-pole with 1..N poles, differentiable in candle, and the stabilized-BPTT training run on it |
 //! | [`error`] | the crate's [`Error`] |
 //! | [`tasks`] | tour and bench entries for `cargo xtask` (HIG vs Adam vs Gauss-Newton, loss vs wall-clock) |
 //!
@@ -32,6 +33,7 @@
 #![warn(missing_docs)]
 
 pub mod bptt;
+pub mod cartpole;
 mod entries;
 pub mod error;
 pub mod hig;

@@ -176,3 +176,32 @@ fn bad_input_is_a_typed_error() {
     assert!(solver.solve(&HigConfig::default(), bad.as_ref(), &[0.0; 4], &mut out).is_err());
     assert!(HigTrainer::new(HigConfig { eta: -1.0, ..Default::default() }).is_err());
 }
+
+/// The eigen path (`J J^T` eigendecomposition, never forming `V`) gives the SVD path's update,
+/// rank and singular values on well-conditioned and on rank-deficient Jacobians, for HIG and
+/// Gauss-Newton, in the short-wide and in the tall shape.
+#[test]
+fn eigen_path_equals_svd_path() {
+    use pbdl_optim::hig::Decomposition;
+    // Rank-deficient: 40 x 120 of rank 30 (product of 40x30 and 30x120).
+    let low = random_mat(40, 30, 7).as_ref() * random_mat(30, 120, 8).as_ref();
+    for (j, tau) in [(random_mat(64, 300, 5), 1e-6), (random_mat(90, 40, 6), 1e-6), (low, 1e-6)] {
+        let (m, n) = j.shape();
+        let g = random_vec(m, 9);
+        for base in [HigConfig::hig(1.0, tau), HigConfig::gauss_newton(1.0, tau)] {
+            let mut svd = HalfInverse::new(m, n, Par::Seq);
+            let mut eig = HalfInverse::new(m, n, Par::Seq);
+            let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+            let ia = svd.solve(&base, j.as_ref(), &g, &mut a).unwrap();
+            let ib = eig.solve(&base.with_decomposition(Decomposition::Eigen), j.as_ref(), &g, &mut b).unwrap();
+            assert_eq!(ia.rank, ib.rank, "{m}x{n} exponent {}", base.exponent);
+            assert!((ia.s_max - ib.s_max).abs() <= 1e-12 * ia.s_max);
+            let err = rel_diff(&b, &a);
+            assert!(err < 1e-10, "{m}x{n} exponent {}: relative difference {err:e}", base.exponent);
+            let (sa, sb) = (svd.singular_values(), eig.singular_values());
+            for k in 0..ia.rank {
+                assert!((sa[k] - sb[k]).abs() <= 1e-10 * sa[0], "s_{k}: {} vs {}", sa[k], sb[k]);
+            }
+        }
+    }
+}

@@ -58,6 +58,30 @@ pub enum Error {
         /// The step at which it was found.
         step: u64,
     },
+    /// An iterative solver (pressure, divergence) missed its tolerance.
+    #[error("{solver} did not converge at step {step}: residual {residual:.3e} after {iterations} iterations (tolerance {tolerance:.1e}); reduce the time step (cfl) or raise max_iterations")]
+    SolverNotConverged {
+        /// Which solver.
+        solver: &'static str,
+        /// Iterations done.
+        iterations: usize,
+        /// The final residual (average relative density error).
+        residual: f64,
+        /// The tolerance that was asked for.
+        tolerance: f64,
+        /// The step at which it happened.
+        step: u64,
+    },
+    /// A scene has a bad or unknown field.
+    #[error("scene `{scene}`: field `{field}`: {reason}")]
+    SceneField {
+        /// The scene (name or file).
+        scene: String,
+        /// The field's path, e.g. `dam_break.geometry.dx` or an unknown key.
+        field: String,
+        /// What is wrong.
+        reason: String,
+    },
     /// A scene file could not be parsed.
     #[error("scene: {0}")]
     Scene(String),

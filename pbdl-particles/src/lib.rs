@@ -10,7 +10,9 @@
 //! | [`riemann`] | exact Riemann solver of the 1D Euler equations ([`riemann::solve`], [`GasState`]) |
 //! | [`sph1d`] | [`Sph1d`]: compressible 1D SPH (grad-h, Monaghan viscosity), [`ShockTube`] (Sod by default), periodic boxes |
 //! | [`wcsph`] | [`Wcsph`]: 2D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, extrapolated wall particles), [`DamBreak`] (Martin & Moyce) |
+//! | [`iisph`] | [`Iisph`]: 2D implicit incompressible SPH (relaxed-Jacobi pressure solve to a stated density tolerance, wall particles), [`DamBreak::build_iisph`] |
 //! | [`render`] | particles splatted into pixel fields for PNG/GIF ([`render::scatter`]) |
+//! | [`scene`] | [`scene::Scene`]: TOML scenes (shock tube, dam break WCSPH/IISPH, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
 //! | [`mod@tasks`] | [`tasks()`]: tour (Sod, dam break), bench (neighbour search, Sod time vs error, WCSPH step), stress (dam break to T = 10, strong shocks) |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
@@ -19,15 +21,18 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod iisph;
 pub mod kernels;
 pub mod neighbors;
 pub mod render;
 pub mod riemann;
+pub mod scene;
 pub mod sph1d;
 pub mod tasks;
 pub mod wcsph;
 
 pub use error::{Error, Result};
+pub use iisph::{Iisph, IisphParams};
 pub use kernels::{Kernel, KernelKind};
 pub use neighbors::{CellList, Domain, NeighborList};
 pub use riemann::GasState;

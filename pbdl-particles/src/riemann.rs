@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 /// A primitive gas state: density, velocity, pressure.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct GasState {
     /// Density.
     pub rho: f64,

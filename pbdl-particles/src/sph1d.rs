@@ -328,6 +328,25 @@ impl Sph1d {
         &self.params
     }
 
+    /// The terms this stepper evaluates: `summation_density_grad_h`, `pressure_force`,
+    /// `energy_equation`, then `artificial_viscosity` (only when `alpha` or `beta` > 0) and
+    /// `fixed_ghosts` (only when some particles are fixed).
+    pub fn operators(&self) -> Vec<&'static str> {
+        let mut ops = vec!["summation_density_grad_h", "pressure_force", "energy_equation"];
+        if self.params.alpha > 0.0 || self.params.beta > 0.0 {
+            ops.push("artificial_viscosity");
+        }
+        if self.n_mobile < self.x.len() {
+            ops.push("fixed_ghosts");
+        }
+        ops
+    }
+
+    /// The domain.
+    pub fn domain(&self) -> &Domain<f64, 1> {
+        &self.domain
+    }
+
     /// Total linear momentum of the mobile particles.
     pub fn momentum(&self) -> f64 {
         (0..self.n_mobile).map(|i| self.m[i] * self.v[i]).sum()
@@ -416,6 +435,7 @@ impl Sph1d {
         }
         // Forces.
         let (alpha, beta) = (self.params.alpha, self.params.beta);
+        let viscous = alpha > 0.0 || beta > 0.0;
         let (x, v, m, h, rho, p, cs, omega, nl, dom) =
             (&self.x, &self.v, &self.m, &self.h, &self.rho, &self.p, &self.cs, &self.omega, &self.nl, &self.domain);
         self.acc[..nm]
@@ -441,7 +461,7 @@ impl Sph1d {
                     let vij = v[i] - v[j];
                     let vx = vij * dx;
                     let mut visc = 0.0;
-                    if vx < 0.0 {
+                    if vx < 0.0 && viscous {
                         let hbar = 0.5 * (h[i] + h[j]);
                         let mu = hbar * vx / (r * r + 0.01 * hbar * hbar);
                         let cbar = 0.5 * (cs[i] + cs[j]);

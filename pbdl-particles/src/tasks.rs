@@ -165,7 +165,7 @@ fn tour_dam_break(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     }
     let secs = t0.elapsed().as_secs_f64();
     let (h, w) = (frames[0].h, frames[0].w);
-    let style = FieldStyle { range: ColorRange::Fixed(0.0, vmax), ..Default::default() };
+    let style = FieldStyle { range: ColorRange::Fixed(0.0, vmax), nan_color: [255, 255, 255], ..Default::default() };
     let last = frames.last().expect("frames");
     viz::field_to_png(ctx.out_dir.join("particles_dam_break.png"), &last.data, h, w, &style)?;
     let data: Vec<&[f64]> = frames.iter().map(|f| f.data.as_slice()).collect();

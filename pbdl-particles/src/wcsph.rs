@@ -96,10 +96,10 @@ impl DamBreak {
         big_t / (2.0 * self.g / self.a).sqrt()
     }
 
-    /// Builds the particles and the stepper.
-    ///
-    /// Errors: non-positive sizes, spacing or gravity, a column that does not fit the tank.
-    pub fn build(&self, params: WcsphParams) -> Result<Wcsph> {
+    /// Checks the scene's numbers and lays out fluid (first `n_fluid`) and wall particles for a
+    /// kernel support of `support_over_dx` particle spacings: positions, fluid count, spacing, the
+    /// search box and the tank.
+    pub(crate) fn layout(&self, support_over_dx: f64, wall_layers: Option<usize>) -> Result<DamLayout> {
         let pos = |v: f64| v > 0.0 && v.is_finite();
         for (name, v) in [
             ("a", self.a),
@@ -125,20 +125,11 @@ impl DamBreak {
         if nfx < 4 || nfy < 4 {
             return Err(Error::invalid("dx", format!("{}; the column needs at least 4 particles per side", self.dx)));
         }
-        let c0 = self.c0_factor * (self.g * height).sqrt();
-        let b = self.rho0 * c0 * c0 / 7.0;
-        let h = params.h_over_dx * dx;
-        let support = params.kernel.support_factor() * h;
-        let layers = self.wall_layers.unwrap_or((support / dx).ceil() as usize);
+        let layers = wall_layers.unwrap_or(support_over_dx.ceil() as usize);
         let mut x = Vec::new();
-        let mut rho = Vec::new();
         for j in 0..nfy {
             for i in 0..nfx {
-                let p = [(i as f64 + 0.5) * dx, (j as f64 + 0.5) * dx];
-                x.push(p);
-                // Hydrostatic start: p = ρ0 g (H - y), ρ from the inverse Tait law.
-                let pr = self.rho0 * self.g * (height - p[1]);
-                rho.push(self.rho0 * (pr / b + 1.0).powf(1.0 / 7.0));
+                x.push([(i as f64 + 0.5) * dx, (j as f64 + 0.5) * dx]);
             }
         }
         let n_fluid = x.len();
@@ -150,22 +141,54 @@ impl DamBreak {
                     continue;
                 }
                 x.push([(i as f64 + 0.5) * dx, (j as f64 + 0.5) * dx]);
-                rho.push(self.rho0);
             }
         }
         let margin = (layers as f64 + 2.0) * dx;
         let domain = Domain::bounded([-margin, -margin], [w + margin, ht + margin]);
+        Ok(DamLayout { x, n_fluid, dx, height, domain, container: [[0.0, 0.0], [w, ht]] })
+    }
+
+    /// Builds the particles and the stepper.
+    ///
+    /// Errors: non-positive sizes, spacing or gravity, a column that does not fit the tank.
+    pub fn build(&self, params: WcsphParams) -> Result<Wcsph> {
+        let support = params.kernel.support_factor() * params.h_over_dx;
+        let lay = self.layout(support, self.wall_layers)?;
+        let c0 = self.c0_factor * (self.g * lay.height).sqrt();
+        let b = self.rho0 * c0 * c0 / 7.0;
+        let rho = (0..lay.x.len())
+            .map(|i| {
+                if i < lay.n_fluid {
+                    // Hydrostatic start: p = ρ0 g (H - y), ρ from the inverse Tait law.
+                    let pr = self.rho0 * self.g * (lay.height - lay.x[i][1]);
+                    self.rho0 * (pr / b + 1.0).powf(1.0 / 7.0)
+                } else {
+                    self.rho0
+                }
+            })
+            .collect();
+        let dx = lay.dx;
         Wcsph::new(
             params,
             WcsphPhysics { rho0: self.rho0, c0, gravity: [0.0, -self.g], mass: self.rho0 * dx * dx, dx },
-            x,
-            vec![[0.0; 2]; n_fluid],
+            lay.x,
+            vec![[0.0; 2]; lay.n_fluid],
             rho,
-            n_fluid,
-            domain,
-            [[0.0, 0.0], [w, ht]],
+            lay.n_fluid,
+            lay.domain,
+            lay.container,
         )
     }
+}
+
+/// Particles of a dam break: fluid first, then wall layers.
+pub(crate) struct DamLayout {
+    pub(crate) x: Vec<[f64; 2]>,
+    pub(crate) n_fluid: usize,
+    pub(crate) dx: f64,
+    pub(crate) height: f64,
+    pub(crate) domain: Domain<f64, 2>,
+    pub(crate) container: [[f64; 2]; 2],
 }
 
 /// Physical constants of a [`Wcsph`] run.
@@ -236,16 +259,29 @@ impl Wcsph {
         if !(phys.mass > 0.0 && phys.c0 > 0.0 && phys.rho0 > 0.0 && phys.dx > 0.0) {
             return Err(Error::invalid("physics", format!("{phys:?}; mass, c0, rho0 and dx must be positive")));
         }
-        if !(params.h_over_dx > 0.0
-            && params.alpha >= 0.0
-            && params.delta >= 0.0
-            && params.cfl > 0.0
-            && params.cfl <= 1.0)
-        {
+        if !(params.h_over_dx > 0.0 && params.h_over_dx.is_finite()) {
             return Err(Error::invalid(
-                "params",
-                format!("{params:?}; need h_over_dx > 0, alpha, delta >= 0, 0 < cfl <= 1"),
+                "h_over_dx",
+                format!("{}; the smoothing length must be positive", params.h_over_dx),
             ));
+        }
+        if !(params.alpha >= 0.0 && params.alpha.is_finite()) {
+            return Err(Error::invalid("alpha", format!("{}; must be non-negative", params.alpha)));
+        }
+        if !(params.delta >= 0.0 && params.delta.is_finite()) {
+            return Err(Error::invalid("delta", format!("{}; must be non-negative", params.delta)));
+        }
+        if !(params.cfl > 0.0 && params.cfl <= 1.0) {
+            return Err(Error::invalid("cfl", format!("{}; use 0 < cfl <= 1", params.cfl)));
+        }
+        domain.validate()?;
+        if let Some(i) = x.iter().position(|p| !(0..2).all(|d| p[d] >= domain.lo[d] && p[d] <= domain.hi[d])) {
+            return Err(Error::OutsideDomain {
+                index: i,
+                position: x[i].to_vec(),
+                lo: domain.lo.to_vec(),
+                hi: domain.hi.to_vec(),
+            });
         }
         let kernel = Kernel::new(params.kernel, 2, params.h_over_dx * phys.dx)?;
         let cells = CellList::new(domain, kernel.support())?;
@@ -274,6 +310,43 @@ impl Wcsph {
     /// Number of fluid particles (the first ones).
     pub fn n_fluid(&self) -> usize {
         self.n_fluid
+    }
+
+    /// The terms this stepper evaluates, in order: `tait_eos`, `pressure_gradient`,
+    /// `continuity`, then `artificial_viscosity` (only when `alpha > 0`),
+    /// `delta_sph_diffusion` (`delta > 0`), `gravity` (non-zero gravity) and
+    /// `wall_pressure_extrapolation` (only when there are wall particles).
+    pub fn operators(&self) -> Vec<&'static str> {
+        let mut ops = vec!["tait_eos", "pressure_gradient", "continuity"];
+        if self.params.alpha > 0.0 {
+            ops.push("artificial_viscosity");
+        }
+        if self.params.delta > 0.0 {
+            ops.push("delta_sph_diffusion");
+        }
+        if self.phys.gravity != [0.0, 0.0] {
+            ops.push("gravity");
+        }
+        if self.x.len() > self.n_fluid {
+            ops.push("wall_pressure_extrapolation");
+        }
+        ops
+    }
+
+    /// Numerical parameters.
+    pub fn params(&self) -> &WcsphParams {
+        &self.params
+    }
+
+    /// The search domain (periodic or bounded).
+    pub fn domain(&self) -> &Domain<f64, 2> {
+        self.cells.domain()
+    }
+
+    /// Total linear momentum of the fluid (all particles have the same mass).
+    pub fn momentum(&self) -> [f64; 2] {
+        let m = self.phys.mass;
+        self.v.iter().fold([0.0; 2], |a, v| [a[0] + m * v[0], a[1] + m * v[1]])
     }
 
     /// Simulated time.
@@ -310,6 +383,7 @@ impl Wcsph {
             self.p[i] = b * (r.powi(7) - 1.0);
         }
         // Wall pressure and density extrapolated from the fluid (Adami et al. 2012).
+        let dom = *self.cells.domain();
         let (x, rho, nl, k, g) = (&self.x, &self.rho, &self.nl, &self.kernel, self.phys.gravity);
         let (p_fluid, p_wall) = self.p.split_at_mut(nf);
         let wall_state: Vec<(f64, f64)> = (nf..n)
@@ -321,7 +395,7 @@ impl Wcsph {
                     if f >= nf {
                         continue;
                     }
-                    let d = [x[w][0] - x[f][0], x[w][1] - x[f][1]];
+                    let d = dom.displacement(&x[f], &x[w]);
                     let wk = k.w((d[0] * d[0] + d[1] * d[1]).sqrt());
                     sw += wk;
                     sp += (p_fluid[f] + rho[f] * (g[0] * d[0] + g[1] * d[1])) * wk;
@@ -339,12 +413,13 @@ impl Wcsph {
         let (m, h, c0, alpha, delta, g) =
             (self.phys.mass, k.h(), self.phys.c0, self.params.alpha, self.params.delta, self.phys.gravity);
         let eps = 0.01 * h * h;
+        let has_gravity = g != [0.0, 0.0];
         self.acc.par_iter_mut().zip(self.drho.par_iter_mut()).enumerate().for_each(|(i, (a, dr))| {
             let (mut ax, mut ay, mut d) = (0.0, 0.0, 0.0);
             let pi = p[i] / (rho[i] * rho[i]);
             for &j in nl.neighbors(i) {
                 let j = j as usize;
-                let dx = [x[i][0] - x[j][0], x[i][1] - x[j][1]];
+                let dx = dom.displacement(&x[j], &x[i]);
                 let r2 = dx[0] * dx[0] + dx[1] * dx[1];
                 if r2 <= 0.0 {
                     continue;
@@ -370,7 +445,7 @@ impl Wcsph {
                     d += delta * h * c0 * (m / rho[j]) * psi * (-(dx[0] * gw[0] + dx[1] * gw[1]));
                 }
             }
-            *a = [ax + g[0], ay + g[1]];
+            *a = if has_gravity { [ax + g[0], ay + g[1]] } else { [ax, ay] };
             *dr = d;
         });
         self.max_acc = self.acc.iter().fold(0.0f64, |acc, a| acc.max((a[0] * a[0] + a[1] * a[1]).sqrt()));
@@ -426,6 +501,12 @@ impl Wcsph {
                 v[i][d] += half * acc[i][d];
             }
             rho[i] += half * drho[i];
+        }
+        let dom = *self.cells.domain();
+        if dom.periodic.iter().any(|&p| p) {
+            for xi in &mut x[..nf] {
+                *xi = dom.wrap(*xi);
+            }
         }
         self.evaluate()?;
         for i in 0..nf {

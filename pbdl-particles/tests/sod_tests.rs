@@ -104,3 +104,53 @@ fn unstable_step_and_bad_input_are_typed_errors() {
     bad.right.p = -1.0;
     assert!(bad.build(100, p).is_err());
 }
+
+/// The first falling crossing of `level` by the piecewise-linear profile `(xs, ys)` (xs sorted)
+/// at `x >= from`.
+fn falling_crossing(xs: &[f64], ys: &[f64], level: f64, from: f64) -> Option<f64> {
+    (1..xs.len()).find_map(|k| {
+        (xs[k - 1] >= from && ys[k - 1] >= level && ys[k] < level)
+            .then(|| xs[k - 1] + (ys[k - 1] - level) / (ys[k - 1] - ys[k]) * (xs[k] - xs[k - 1]))
+    })
+}
+
+/// Rarefaction head and tail, contact and shock, located the same way in the exact and the SPH
+/// density profiles (level crossings: 5% into the rarefaction from either end, mid-jump at the
+/// contact and the shock), agree within twice the local smoothing length.
+#[test]
+fn sod_wave_positions_within_two_h_of_exact() {
+    let tube = ShockTube::sod();
+    let ex = tube.exact().unwrap();
+    let t = 0.2;
+    let fine: Vec<f64> = (0..=100_000).map(|k| -0.5 + k as f64 * 1e-5).collect();
+    let fine_rho: Vec<f64> = fine.iter().map(|&x| ex.at(x, 0.0, t).rho).collect();
+    let (rl, rsl, rsr, rr) = (ex.left.rho, ex.rho_star_left, ex.rho_star_right, ex.right.rho);
+    let waves = [
+        ("rarefaction head", rl - 0.05 * (rl - rsl)),
+        ("rarefaction tail", rsl + 0.05 * (rl - rsl)),
+        ("contact", 0.5 * (rsl + rsr)),
+        ("shock", 0.5 * (rsr + rr)),
+    ];
+    for n in [225, 450] {
+        let mut sim = tube.build(n, Sph1dParams::default()).unwrap();
+        sim.run_until(t).unwrap();
+        let mut idx: Vec<usize> = (0..sim.n_mobile()).collect();
+        idx.sort_by(|&a, &b| sim.x[a].total_cmp(&sim.x[b]));
+        let xs: Vec<f64> = idx.iter().map(|&i| sim.x[i]).collect();
+        let rho: Vec<f64> = idx.iter().map(|&i| sim.rho[i]).collect();
+        let mut from = -0.5;
+        for (name, level) in waves {
+            let x_exact = falling_crossing(&fine, &fine_rho, level, from).unwrap();
+            let x_sph = falling_crossing(&xs, &rho, level, x_exact - 0.05).unwrap();
+            let k = xs.partition_point(|&x| x < x_sph).min(xs.len() - 1);
+            let h = sim.h[idx[k]];
+            eprintln!(
+                "N = {n}: {name}: SPH {x_sph:.4}, exact {x_exact:.4}, diff {:+.4} = {:+.2} h (h = {h:.4})",
+                x_sph - x_exact,
+                (x_sph - x_exact) / h
+            );
+            assert!((x_sph - x_exact).abs() <= 2.0 * h, "N = {n}: {name} off by {:.2} h", (x_sph - x_exact) / h);
+            from = x_exact;
+        }
+    }
+}

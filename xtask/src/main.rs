@@ -6,7 +6,8 @@
 //! * `bench [crate]`: time against error in the shared schema, `target/pbdl/bench/<crate>.json`
 //!   plus a markdown table and a PNG plot.
 //! * `stress [crate]`: long and extreme runs; reports the first step at which an invariant breaks.
-//! * `sim grid <scene | file.toml>`: runs a scene, writes its trajectory (`.npz`) and renders.
+//! * `sim grid|particles <scene | file.toml>`: runs a scene, writes its trajectory (`.npz`) and
+//!   renders.
 //! * `ci`: format check, clippy with `-D warnings`, the test suite.
 
 mod bench;
@@ -58,17 +59,23 @@ enum Command {
     /// renders to target/pbdl/sim/<scene>/.
     #[command(after_help = SIM_HELP)]
     Sim {
-        /// The simulator crate: `grid`.
+        /// The simulator crate: `grid` or `particles`.
         krate: String,
-        /// A built-in scene name (burgers_1d, burgers_2d, heat, poisson, advection_diffusion,
-        /// taylor_green, lid_driven_cavity, kolmogorov, smoke_plume, cylinder) or a .toml file.
+        /// A built-in scene name (grid: burgers_1d, burgers_2d, heat, poisson,
+        /// advection_diffusion, taylor_green, lid_driven_cavity, kolmogorov, smoke_plume,
+        /// cylinder; particles: shock_tube, dam_break, dam_break_iisph, periodic_1d_noise,
+        /// periodic_2d_box) or a .toml file.
         scene: String,
         /// Cells along x (y scaled to keep the aspect ratio).
         #[arg(long)]
         res: Option<usize>,
-        /// Number of steps (replaces the scene's steps / t_end; the time step is kept).
+        /// Number of steps (replaces the scene's steps / t_end; the time step is kept). For
+        /// particles: the number of output frames (the frame interval is kept).
         #[arg(long)]
         steps: Option<usize>,
+        /// Particles: runs with seeds 0..N (noise scenes differ per seed), one .npz each.
+        #[arg(long)]
+        seeds: Option<usize>,
         /// Start from the fields in this .npz (see below for names and layout).
         #[arg(long)]
         init: Option<PathBuf>,
@@ -96,10 +103,18 @@ averaged to the faces and made divergence-free; or `velocity_mac` with the grid'
 Scalar scenes read their scalar by the name above ([Y, X], [1, Y, X] or [T, 1, Y, X]; the
 Poisson scene reads `source`). A trajectory written by `sim` is a valid --init file.
 
+Particles (`sim particles`): <out>/<scene>_seed<k>.npz with `positions` [T, N, D],
+`velocities` [T, N, D], `density` [T, N], `mass` [T, N], `time` [T] (f64) and, where there are
+walls or ghosts, `fixed_positions` [F, D]; <scene>_seed<k>.png (last frame) and .gif beside it.
+--init FILE.npz reads `positions` [N, D] or [T, N, D] (last frame), optional `velocities`,
+`mass`, `density` (the fluid; walls come from the scene). A trajectory is a valid --init file.
+
 Examples:
   cargo xtask sim grid taylor_green --res 128
   cargo xtask sim grid lid_driven_cavity --res 64 --out /tmp/cavity
-  cargo xtask sim grid my_scene.toml --init start.npz --steps 500";
+  cargo xtask sim grid my_scene.toml --init start.npz --steps 500
+  cargo xtask sim particles periodic_2d_box --seeds 4 --out /tmp/box
+  cargo xtask sim particles dam_break_iisph --steps 50";
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
@@ -107,8 +122,8 @@ fn main() -> anyhow::Result<()> {
         Command::Tour { quick, out } => tour::run(quick, out.unwrap_or_else(|| report::target_dir().join("tour"))),
         Command::Bench { krate, quick } => bench::run(krate.as_deref(), quick),
         Command::Stress { krate, quick } => stress::run(krate.as_deref(), quick),
-        Command::Sim { krate, scene, res, steps, init, out } => {
-            sim::run(sim::SimArgs { krate, scene, res, steps, init, out })
+        Command::Sim { krate, scene, res, steps, seeds, init, out } => {
+            sim::run(sim::SimArgs { krate, scene, res, steps, init, out, seeds })
         }
         Command::Ci => ci::run(),
         Command::List => {

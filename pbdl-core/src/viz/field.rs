@@ -46,7 +46,7 @@ pub enum Origin {
 }
 
 /// How a scalar field is drawn.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct FieldStyle {
     /// The colormap. Default: [`Colormap::Viridis`].
     pub colormap: Colormap,
@@ -56,6 +56,22 @@ pub struct FieldStyle {
     pub upscale: Option<u32>,
     /// Where row 0 goes. Default: [`Origin::Lower`] (y up).
     pub origin: Origin,
+    /// Colour of NaN values. Default: [`NAN_COLOR`](super::NAN_COLOR) (magenta), so that a
+    /// blown-up simulation is obvious; renders that use NaN for "empty" (particle scatter
+    /// plots) set a background colour here.
+    pub nan_color: [u8; 3],
+}
+
+impl Default for FieldStyle {
+    fn default() -> Self {
+        FieldStyle {
+            colormap: Colormap::default(),
+            range: ColorRange::default(),
+            upscale: None,
+            origin: Origin::default(),
+            nan_color: super::NAN_COLOR,
+        }
+    }
 }
 
 impl FieldStyle {
@@ -80,7 +96,7 @@ pub fn field_to_rgb<T: Copy + Into<f64>>(data: &[T], h: usize, w: usize, style: 
     check_len("field_to_rgb", "data", data.len(), h, w)?;
     let (lo, hi) = style.range.resolve(data.iter().copied(), style.colormap)?;
     let k = upscale_factor("field_to_rgb", style, h, w)?;
-    Ok(render(|i| data[i].into(), h, w, k, style.colormap, style.origin, lo, hi, None))
+    Ok(render(|i| data[i].into(), h, w, k, style, lo, hi, None))
 }
 
 /// Renders a scalar field to a PNG file (written atomically); see [`field_to_rgb`].
@@ -254,12 +270,12 @@ pub(crate) fn render(
     h: usize,
     w: usize,
     k: u32,
-    colormap: Colormap,
-    origin: Origin,
+    style: &FieldStyle,
     lo: f64,
     hi: f64,
     levels: Option<u32>,
 ) -> RgbImage {
+    let (colormap, origin) = (style.colormap, style.origin);
     let k = k as usize;
     let mut img = RgbImage::new((w * k) as u32, (h * k) as u32);
     for row in 0..h {
@@ -268,12 +284,13 @@ pub(crate) fn render(
             Origin::Upper => row,
         };
         for x in 0..w {
-            let mut t = normalize(value(y * w + x), lo, hi);
+            let v = value(y * w + x);
+            let mut t = normalize(v, lo, hi);
             if let Some(n) = levels {
                 let n = (n.max(2) - 1) as f64;
                 t = (t.clamp(0.0, 1.0) * n).round() / n;
             }
-            let c = Rgb(colormap.rgb(t));
+            let c = Rgb(if v.is_nan() { style.nan_color } else { colormap.rgb(t) });
             for py in row * k..(row + 1) * k {
                 for px in x * k..(x + 1) * k {
                     img.put_pixel(px as u32, py as u32, c);

@@ -83,7 +83,7 @@ where
     let delay = Delay::from_numer_denom_ms(style.frame_delay_ms, 1);
     let images = frames.iter().map(|f| {
         let f = f.as_ref();
-        let rgb = render(|i| f[i].into(), h, w, k, field.colormap, field.origin, lo, hi, Some(255));
+        let rgb = render(|i| f[i].into(), h, w, k, field, lo, hi, Some(255));
         let rgba = RgbaImage::from_fn(rgb.width(), rgb.height(), |x, y| {
             let [r, g, b] = rgb.get_pixel(x, y).0;
             image::Rgba([r, g, b, 255])

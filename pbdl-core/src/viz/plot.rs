@@ -499,15 +499,22 @@ where
         builder.caption(&style.title, (FONT_FAMILY, font * 1.4));
     }
     let mut chart = builder.build_cartesian_2d(x, y).map_err(err)?;
-    let formatter = |v: &f64| tick_label(*v);
+    // Ticks are stepped in floating point, so "0" can arrive as -5.6e-17: snap values that are
+    // negligible against the axis span.
+    let (xr, yr) = (chart.x_range(), chart.y_range());
+    // Log axes never contain 0: nothing to snap there.
+    let x_span = if style.log_x { 0.0 } else { (xr.end - xr.start).abs() };
+    let y_span = if style.log_y { 0.0 } else { (yr.end - yr.start).abs() };
+    let x_formatter = |v: &f64| tick_label(if v.abs() < 1e-9 * x_span { 0.0 } else { *v });
+    let y_formatter = |v: &f64| tick_label(if v.abs() < 1e-9 * y_span { 0.0 } else { *v });
     chart
         .configure_mesh()
         .x_desc(&style.x_label)
         .y_desc(&style.y_label)
         .x_labels(8)
         .y_labels(8)
-        .x_label_formatter(&formatter)
-        .y_label_formatter(&formatter)
+        .x_label_formatter(&x_formatter)
+        .y_label_formatter(&y_formatter)
         .label_style((FONT_FAMILY, font * 0.85))
         .axis_desc_style((FONT_FAMILY, font))
         .bold_line_style(RGBColor(225, 225, 225))

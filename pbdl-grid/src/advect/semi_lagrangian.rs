@@ -127,18 +127,23 @@ struct Foot {
 }
 
 impl SemiLagrangian {
-    fn foot<T: Real>(&self, up: &[T], vp: &[T], j: usize, i: usize, loc: Loc) -> Foot {
+    #[inline(always)]
+    fn foot<T: Real>(&self, up: &[T], vp: &[T], j: usize, i: usize, loc: Loc, cfl: (f64, f64)) -> Foot {
         let (nx, ny) = (self.grid.nx, self.grid.ny);
         let w = nx + 2;
         let c = (j + 1) * w + i + 1;
         let (u, v) = vel_at(up, vp, w, c, loc);
-        let (u, v) = (u.to_f64(), v.to_f64());
-        let x = i as f64 - self.dt * u / self.grid.dx();
-        let y = j as f64 - self.dt * v / self.grid.dy();
+        let x = i as f64 - cfl.0 * u.to_f64();
+        let y = j as f64 - cfl.1 * v.to_f64();
         let (i0, tx, sx) = locate(x, nx, self.layout.periodic[0]);
         let (j0, ty, sy) = locate(y, ny, self.layout.periodic[1]);
         let k0 = j0 * w + i0;
         Foot { k: [k0, k0 + 1, k0 + w, k0 + w + 1], tx, ty, sx, sy }
+    }
+
+    /// `(dt / dx, dt / dy)`, hoisted out of the per-sample loop.
+    fn cfl(&self) -> (f64, f64) {
+        (self.dt / self.grid.dx(), self.dt / self.grid.dy())
     }
 
     /// Forward in one of three modes, shared by the value op and the limiter bounds.
@@ -146,6 +151,7 @@ impl SemiLagrangian {
         let (nx, ny) = (self.grid.nx, self.grid.ny);
         let (n, pn) = (nx * ny, (nx + 2) * (ny + 2));
         let nc = self.layout.chans.len();
+        let cfl = self.cfl();
         let mut up = zeros::<T>(pn);
         let mut vp = zeros::<T>(pn);
         let mut qp = zeros::<T>(pn);
@@ -158,7 +164,7 @@ impl SemiLagrangian {
                 let (up, vp, qp) = (&*up, &*vp, &*qp);
                 for_rows(&mut out[off..off + n], nx, n >= PAR_CELLS, |j, o| {
                     for (i, o) in o.iter_mut().enumerate() {
-                        let f = self.foot(up, vp, j, i, loc);
+                        let f = self.foot(up, vp, j, i, loc, cfl);
                         let c = f.k.map(|k| qp[k]);
                         *o = match mode {
                             Mode::Value => {
@@ -264,6 +270,7 @@ impl SlGradQ {
         let (nx, ny) = (sl.grid.nx, sl.grid.ny);
         let (n, pn) = (nx * ny, (nx + 2) * (ny + 2));
         let nc = sl.layout.chans.len();
+        let cfl = sl.cfl();
         let mut up = zeros::<T>(pn);
         let mut vp = zeros::<T>(pn);
         let mut qp = zeros::<T>(pn);
@@ -283,7 +290,7 @@ impl SlGradQ {
                         if sl.is_fixed(ch, j, i) || a == T::zero() {
                             continue;
                         }
-                        let f = sl.foot(&up, &vp, j, i, loc);
+                        let f = sl.foot(&up, &vp, j, i, loc, cfl);
                         match self.max {
                             None => {
                                 let (tx, ty) = (T::c(f.tx), T::c(f.ty));
@@ -349,7 +356,8 @@ impl Kernel3 for SlGradVel {
         let (nx, ny) = (sl.grid.nx, sl.grid.ny);
         let (n, pn, w) = (nx * ny, (nx + 2) * (ny + 2), nx + 2);
         let nc = sl.layout.chans.len();
-        let (cx, cy) = (-sl.dt / sl.grid.dx(), -sl.dt / sl.grid.dy());
+        let cfl = sl.cfl();
+        let (cx, cy) = (-cfl.0, -cfl.1);
         let mut up = zeros::<T>(pn);
         let mut vp = zeros::<T>(pn);
         let mut qp = zeros::<T>(pn);
@@ -369,7 +377,7 @@ impl Kernel3 for SlGradVel {
                         if sl.is_fixed(ch, j, i) || a == T::zero() {
                             continue;
                         }
-                        let f = sl.foot(&up, &vp, j, i, loc);
+                        let f = sl.foot(&up, &vp, j, i, loc, cfl);
                         let c = f.k.map(|k| qp[k].to_f64());
                         let dqx = (1.0 - f.ty) * (c[1] - c[0]) + f.ty * (c[3] - c[2]);
                         let dqy = (1.0 - f.tx) * (c[2] - c[0]) + f.tx * (c[3] - c[1]);

@@ -3,10 +3,13 @@
 use super::{Forcing, Physics, Scene, SceneError, SceneResult};
 use crate::advect::MomentumRhs;
 use crate::burgers::ScalarLaw;
+use crate::fluid::Advection;
+use crate::obstacle::Obstacle as SolidShape;
 use crate::stability::stable_time_step;
 use crate::time_stepping::{projected_runge_kutta, ButcherTableau, Scheme};
 use crate::{
-    fd, Bc, Boundaries, CenteredField, Error, Grid, MacField, NavierStokes, NavierStokesConfig, PressureSolver,
+    fd, Bc, Boundaries, CenteredField, Error, Fluid, FluidConfig, FluidState, Grid, MacField, NavierStokes,
+    NavierStokesConfig, PressureSolver, ScalarBc, ScalarBoundaries,
 };
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::sample::{resize2d, Resize};
@@ -19,15 +22,58 @@ pub enum State {
     Scalar(Tensor),
     /// A staggered velocity.
     Velocity(MacField),
+    /// A staggered velocity and a cell-centred density (the smoke scene).
+    Smoke(FluidState),
+}
+
+impl State {
+    /// The velocity of a velocity or smoke state.
+    pub fn velocity(&self) -> Option<&MacField> {
+        match self {
+            State::Velocity(u) => Some(u),
+            State::Smoke(s) => Some(&s.velocity),
+            State::Scalar(_) => None,
+        }
+    }
+
+    /// The density of a smoke state.
+    pub fn density(&self) -> Option<&CenteredField> {
+        match self {
+            State::Smoke(s) => s.density.as_ref(),
+            _ => None,
+        }
+    }
 }
 
 /// The stepper: one variant per physics kind, each holding only its operators.
 enum Stepper {
-    Law { law: ScalarLaw, tableau: ButcherTableau },
-    Heat { template: CenteredField, kappa: f64, tableau: ButcherTableau },
-    Poisson { solver: Arc<PressureSolver>, source: CenteredField, solved: bool },
-    Burgers2d { rhs: MomentumRhs, tableau: ButcherTableau },
-    Fluid { ns: Box<NavierStokes>, forcing: Option<(Tensor, f64)> },
+    Law {
+        law: ScalarLaw,
+        tableau: ButcherTableau,
+    },
+    Heat {
+        template: CenteredField,
+        kappa: f64,
+        tableau: ButcherTableau,
+    },
+    Poisson {
+        solver: Arc<PressureSolver>,
+        source: CenteredField,
+        solved: bool,
+    },
+    Burgers2d {
+        rhs: MomentumRhs,
+        tableau: ButcherTableau,
+    },
+    Fluid {
+        ns: Box<NavierStokes>,
+        forcing: Option<(Tensor, f64)>,
+    },
+    /// Smoke and obstacle flows ([`crate::Fluid`]); `rate` is the density inflow rate.
+    Smoke {
+        fluid: Box<Fluid>,
+        rate: Option<Tensor>,
+    },
 }
 
 /// A built scene: its stepper (with only the operators the scene needs), the current state and
@@ -262,17 +308,75 @@ impl Simulation {
                 };
                 (Stepper::Fluid { ns: Box::new(ns), forcing }, State::Velocity(u), ops, dt)
             }
-            Physics::Smoke { .. } => {
-                return Err(SceneError::NeedsStepper {
-                    scene: scene.name.clone(),
-                    stepper: "smoke (buoyancy + density advection)",
-                })
+            Physics::Smoke { nu, buoyancy, boundaries, source, advection } => {
+                let grid = grid.expect("validated 2D");
+                let u = velocity(grid, *boundaries)?;
+                let speed = u.max_abs()?.max(boundary_speed(boundaries));
+                let s = scene.time.speed.unwrap_or(speed);
+                let dt = pick_dt(speed, fluid_stable_dt(&grid, *advection, s, *nu))?;
+                let density_advection = if *advection == Advection::SemiLagrangian {
+                    Advection::SemiLagrangian
+                } else {
+                    Advection::MacCormack
+                };
+                let config = FluidConfig {
+                    dt,
+                    nu: *nu,
+                    advection: *advection,
+                    density_advection,
+                    buoyancy: Some(*buoyancy),
+                    inflow: Some(SolidShape::Cylinder {
+                        center: [source.center[0] - x0, source.center[1] - y0],
+                        radius: source.radius,
+                    }),
+                    obstacles: solid_shapes(&scene),
+                };
+                let fluid = Fluid::new(grid, *boundaries, Some(density_boundaries(boundaries)), config)?;
+                let mut state = fluid.rest(1, dtype)?;
+                state.velocity = fluid.project(&u)?;
+                let rate = c(Tensor::new(&[source.rate], &Device::Cpu).and_then(|t| t.to_dtype(dtype)))?;
+                let ops = fluid.operators().to_vec();
+                (Stepper::Smoke { fluid: Box::new(fluid), rate: Some(rate) }, State::Smoke(state), ops, dt)
             }
-            Physics::Cylinder { .. } => {
-                return Err(SceneError::NeedsStepper {
-                    scene: scene.name.clone(),
-                    stepper: "cylinder (obstacles + inflow/outflow)",
-                })
+            Physics::Cylinder { nu, inflow, advection, kick } => {
+                let grid = grid.expect("validated 2D");
+                let bc =
+                    Boundaries::new(Bc::Inflow { velocity: [*inflow, 0.0] }, Bc::Outflow, Bc::FreeSlip, Bc::FreeSlip)?;
+                let shapes = solid_shapes(&scene);
+                // The kick: a transverse velocity in a square of one diameter behind the first circle.
+                let behind = shapes.iter().find_map(|o| match *o {
+                    SolidShape::Cylinder { center, radius } => Some((center, radius)),
+                    _ => None,
+                });
+                let (u_in, k) = (*inflow, *kick * *inflow);
+                let f = scene.init.velocity(g.lx, g.ly);
+                let uniform = matches!(scene.init, super::Init::Zero);
+                let u = MacField::from_fn(grid, bc, dtype, move |x, y| {
+                    let mut v = if uniform { [u_in, 0.0] } else { f(x + x0, y + y0) };
+                    if let Some((c, r)) = behind {
+                        let d = 2.0 * r;
+                        if (x - c[0] - 1.5 * d).abs() < 0.5 * d && (y - c[1] - 0.5 * d).abs() < 0.5 * d {
+                            v[1] += k;
+                        }
+                    }
+                    v
+                })?;
+                let speed = u.max_abs()?.max(boundary_speed(&bc));
+                let s = scene.time.speed.unwrap_or(speed);
+                let dt = pick_dt(speed, fluid_stable_dt(&grid, *advection, s, *nu))?;
+                let config = FluidConfig {
+                    dt,
+                    nu: *nu,
+                    advection: *advection,
+                    density_advection: Advection::MacCormack,
+                    buoyancy: None,
+                    inflow: None,
+                    obstacles: shapes,
+                };
+                let fluid = Fluid::new(grid, bc, None, config)?;
+                let u = fluid.project(&u)?;
+                let ops = fluid.operators().to_vec();
+                (Stepper::Smoke { fluid: Box::new(fluid), rate: None }, State::Velocity(u), ops, dt)
             }
         };
         operators.dedup();
@@ -379,6 +483,11 @@ impl Simulation {
                 }
                 State::Velocity(v)
             }
+            (Stepper::Smoke { fluid, .. }, State::Velocity(u)) => {
+                let s = FluidState { velocity: u.clone(), density: None };
+                State::Velocity(fluid.step(&s, None)?.velocity)
+            }
+            (Stepper::Smoke { fluid, rate }, State::Smoke(s)) => State::Smoke(fluid.step(s, rate.as_ref())?),
             _ => unreachable!("stepper and state are built together"),
         };
         self.step += 1;
@@ -421,6 +530,18 @@ impl Simulation {
                     return Err(Error::NonFinite { what: "velocity", value: m }.into());
                 }
             }
+            (_, State::Smoke(s)) => {
+                let m = s.velocity.max_abs()?;
+                if !m.is_finite() {
+                    return Err(Error::NonFinite { what: "velocity", value: m }.into());
+                }
+                if let Some(rho) = &s.density {
+                    let m = max_abs(rho.values())?;
+                    if !m.is_finite() {
+                        return Err(Error::NonFinite { what: "density", value: m }.into());
+                    }
+                }
+            }
         }
         Ok(())
     }
@@ -439,13 +560,19 @@ impl Simulation {
                 }
                 Ok(out)
             }
-            State::Velocity(u) => {
+            State::Velocity(_) | State::Smoke(_) => {
+                let u = self.state.velocity().expect("velocity state");
                 let (centred, vort) = centre_velocity(u)?;
-                Ok(vec![
+                let mut out = Vec::new();
+                if let Some(rho) = self.state.density() {
+                    out.push(("density".into(), c(rho.values().narrow(0, 0, 1).and_then(|t| t.squeeze(0)))?));
+                }
+                out.extend([
                     ("velocity".into(), centred),
-                    ("velocity_mac".into(), c(u.values().squeeze(0))?),
+                    ("velocity_mac".into(), c(u.values().narrow(0, 0, 1).and_then(|t| t.squeeze(0)))?),
                     ("vorticity".into(), vort),
-                ])
+                ]);
+                Ok(out)
             }
         }
     }
@@ -456,7 +583,9 @@ impl Simulation {
     /// the grid, averaged to the faces and projected; `velocity_mac` (`[2, Y, X]` or a trajectory)
     /// is preferred when its `Y, X` equal the grid's (taken as is, then projected). Scalar scenes take their scalar by name (`u`,
     /// `temperature`, `source` for Poisson, `concentration`) as `[Y, X]`, `[1, Y, X]` or
-    /// `[T, 1, Y, X]` (1D: `[X]` too). Returns the names used.
+    /// `[T, 1, Y, X]` (1D: `[X]` too). The smoke scene takes `density` (`[Y, X]`, `[1, Y, X]`
+    /// or `[T, 1, Y, X]`, resampled like the velocity), the velocity, or both; what is not given
+    /// is kept. Returns the names used.
     pub fn set_fields(&mut self, arrays: &[(String, Tensor)]) -> SceneResult<Vec<String>> {
         let g = self.scene.grid;
         let invalid = |field: &str, reason: String| SceneError::Invalid {
@@ -513,9 +642,25 @@ impl Simulation {
                 }
                 Ok(vec![name.into()])
             }
-            State::Velocity(u) => {
+            State::Velocity(_) | State::Smoke(_) => {
+                let u = self.state.velocity().expect("velocity state");
                 let grid = *u.grid();
                 let bc = *u.bc();
+                let mut used = Vec::new();
+                let density = match (&self.state, find("density")) {
+                    (State::Smoke(s), Some(t)) => {
+                        let rho = s.density.as_ref().expect("smoke state has a density");
+                        used.push("density".to_string());
+                        Some(rho.with_values(c(to4("density", &t, 1)?.to_dtype(self.dtype))?)?)
+                    }
+                    (State::Smoke(s), None) => s.density.clone(),
+                    _ => None,
+                };
+                let has_velocity = find("velocity").is_some() || find("velocity_mac").is_some();
+                if let (State::Smoke(s), false, false) = (&self.state, has_velocity, used.is_empty()) {
+                    self.state = State::Smoke(FluidState { velocity: s.velocity.clone(), density });
+                    return Ok(used);
+                }
                 // The staggered values are used as they are when their shape matches the grid
                 // (last frame of a trajectory); otherwise the centred `velocity` is resampled.
                 let mac = find("velocity_mac").and_then(|t| {
@@ -524,23 +669,29 @@ impl Simulation {
                     let t = t.narrow(0, t.dims().first().copied()?.checked_sub(1)?, 1).ok()?;
                     (t.dims() == [1, 2, g.ny, g.nx]).then_some(t)
                 });
-                let (mac, used) = if let Some(t) = mac {
+                let (mac, name) = if let Some(t) = mac {
                     (t, "velocity_mac")
                 } else if let Some(t) = find("velocity") {
                     (faces_from_centres(&to4("velocity", &t, 2)?, &bc)?, "velocity")
                 } else {
+                    let also = if matches!(self.state, State::Smoke(_)) { ", `density`" } else { "" };
                     return Err(invalid(
                         "velocity",
-                        format!("the file has no array `velocity` or `velocity_mac`; it has {:?}", names(arrays)),
+                        format!("the file has no array `velocity` or `velocity_mac`{also}; it has {:?}", names(arrays)),
                     ));
                 };
                 let field = MacField::new(c(mac.to_dtype(self.dtype))?, grid, bc)?;
                 let field = match &self.stepper {
                     Stepper::Fluid { ns, .. } => ns.project(&field)?,
+                    Stepper::Smoke { fluid, .. } => fluid.project(&field)?,
                     _ => field,
                 };
-                self.state = State::Velocity(field);
-                Ok(vec![used.into()])
+                used.insert(0, name.to_string());
+                self.state = match self.state {
+                    State::Smoke(_) => State::Smoke(FluidState { velocity: field, density }),
+                    _ => State::Velocity(field),
+                };
+                Ok(used)
             }
         }
     }
@@ -549,6 +700,12 @@ impl Simulation {
     /// current state first). `on_step(step)` is called after every step (progress bars). The
     /// state is checked at every frame (see [`Simulation::check`]).
     pub fn run(&mut self, mut on_step: impl FnMut(usize)) -> SceneResult<Trajectory> {
+        self.run_observed(|_, k| on_step(k))
+    }
+
+    /// [`Simulation::run`] with `on_step(state, step)` seeing the state after every step (probes,
+    /// invariant checks).
+    pub fn run_observed(&mut self, mut on_step: impl FnMut(&State, usize)) -> SceneResult<Trajectory> {
         let total = self.steps.saturating_sub(self.step);
         let frames = self.scene.time.frames.clamp(1, total + 1);
         let mut record: Vec<usize> = (0..frames)
@@ -577,7 +734,7 @@ impl Simulation {
         }
         for k in 1..=total {
             self.step()?;
-            on_step(self.step);
+            on_step(&self.state, self.step);
             if record.get(next) == Some(&k) {
                 push(self, &mut traj)?;
                 next += 1;
@@ -702,4 +859,37 @@ fn faces_from_centres(t: &Tensor, bc: &Boundaries) -> SceneResult<Tensor> {
         }
     }
     c(Tensor::from_vec(out, (1, 2, ny, nx), &Device::Cpu))
+}
+
+/// The largest stable step of the [`Fluid`] velocity advection for speed `s`: infinite for the
+/// semi-Lagrangian and MacCormack paths, the RK4 limit for the central flux form.
+fn fluid_stable_dt(grid: &Grid, advection: Advection, s: f64, nu: f64) -> f64 {
+    match advection {
+        Advection::CentralRk4 => stable_time_step(grid, [s, s], nu, &ButcherTableau::rk4()),
+        _ => f64::INFINITY,
+    }
+}
+
+/// The scene's obstacles in solver coordinates (the grid's origin at 0).
+fn solid_shapes(scene: &Scene) -> Vec<SolidShape> {
+    let [x0, y0] = scene.grid.origin;
+    scene
+        .obstacles
+        .iter()
+        .map(|o| match *o {
+            super::Obstacle::Circle { center, radius } => {
+                SolidShape::Cylinder { center: [center[0] - x0, center[1] - y0], radius }
+            }
+            super::Obstacle::Box { lower, upper } => {
+                SolidShape::Box { lo: [lower[0] - x0, lower[1] - y0], hi: [upper[0] - x0, upper[1] - y0] }
+            }
+        })
+        .collect()
+}
+
+/// Density conditions matching velocity ones: periodic where the velocity is, zero gradient
+/// (walls, inflow, outflow) elsewhere.
+fn density_boundaries(b: &Boundaries) -> ScalarBoundaries {
+    let f = |bc: Bc| if bc == Bc::Periodic { ScalarBc::Periodic } else { ScalarBc::Neumann };
+    ScalarBoundaries { x_lo: f(b.x_lo), x_hi: f(b.x_hi), y_lo: f(b.y_lo), y_hi: f(b.y_hi) }
 }

@@ -25,5 +25,5 @@
 pub mod solve;
 pub mod train;
 
-pub use solve::{HalfInverse, HigConfig, SolveInfo};
+pub use solve::{Decomposition, HalfInverse, HigConfig, SolveInfo};
 pub use train::{composed_jacobian, evaluate, run_curve, AdamTrainer, Budget, Curve, HigTrainer, Method, StepInfo};

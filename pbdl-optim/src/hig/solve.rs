@@ -3,8 +3,10 @@
 use crate::error::{check_len, Error, Result};
 use faer::diag::Diag;
 use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::evd::{self, ComputeEigenvectors};
+use faer::linalg::matmul::matmul;
 use faer::linalg::svd::{self, ComputeSvdVectors};
-use faer::{Mat, MatRef, Par};
+use faer::{Accum, Mat, MatRef, Par};
 use serde::{Deserialize, Serialize};
 
 /// Settings of a HIG (or Gauss-Newton) step.
@@ -19,23 +21,48 @@ pub struct HigConfig {
     /// `kappa` in `s_i^-kappa`: `0.5` is HIG, `1.0` Gauss-Newton (the truncated pseudo-inverse),
     /// `0` a projected gradient. Default `0.5`.
     pub exponent: f64,
+    /// How `U`, `S` (and the map back to parameter space) are obtained. Default
+    /// [`Decomposition::Svd`].
+    pub decomposition: Decomposition,
+}
+
+/// Which factorisation a [`HalfInverse`] solve uses. Both give the same update (up to
+/// rounding) as long as the kept singular values are well above `sqrt(f64::EPSILON) * s_max`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Decomposition {
+    /// Thin SVD `J = U S V^T` of the `rows x cols` Jacobian (faer), then `V diag(s^-kappa) U^T g`.
+    #[default]
+    Svd,
+    /// Eigendecomposition of the Gram matrix `J J^T = U diag(lambda) U^T` (`rows x rows`,
+    /// `lambda_i = s_i^2`), then `J^T U diag(lambda^(-(kappa + 1) / 2)) U^T g`, keeping
+    /// `lambda_i > tau^2 lambda_max` (the same cut as `s_i > tau s_max`). Cheaper when
+    /// `rows << cols`, but eigenvalues carry an absolute error `~ eps * lambda_max`, so singular
+    /// values below `~1e-7 s_max` lose relative accuracy.
+    Eigen,
 }
 
 impl Default for HigConfig {
     fn default() -> Self {
-        Self { eta: 1.0, tau: 1e-6, exponent: 0.5 }
+        Self { eta: 1.0, tau: 1e-6, exponent: 0.5, decomposition: Decomposition::Svd }
     }
 }
 
 impl HigConfig {
     /// Half-inverse gradients with learning rate `eta` and truncation `tau`.
     pub fn hig(eta: f64, tau: f64) -> Self {
-        Self { eta, tau, exponent: 0.5 }
+        Self { eta, tau, exponent: 0.5, decomposition: Decomposition::Svd }
     }
 
     /// The Gauss-Newton baseline (exponent 1) with the same code path.
     pub fn gauss_newton(eta: f64, tau: f64) -> Self {
-        Self { eta, tau, exponent: 1.0 }
+        Self { eta, tau, exponent: 1.0, decomposition: Decomposition::Svd }
+    }
+
+    /// The same settings solved with `decomposition`.
+    pub fn with_decomposition(mut self, decomposition: Decomposition) -> Self {
+        self.decomposition = decomposition;
+        self
     }
 
     /// Checks every setting.
@@ -84,6 +111,11 @@ pub struct HalfInverse {
     c: Vec<f64>,
     mem: MemBuffer,
     par: Par,
+    decomposition: Decomposition,
+    /// Eigen path: the Gram matrix `J J^T`, its eigenvalues (ascending) and `U c`.
+    gram: Mat<f64>,
+    lambda: Diag<f64>,
+    w: Vec<f64>,
 }
 
 impl std::fmt::Debug for HalfInverse {
@@ -105,18 +137,39 @@ impl HalfInverse {
             c: Vec::new(),
             mem: MemBuffer::new(faer::dyn_stack::StackReq::EMPTY),
             par,
+            decomposition: Decomposition::Svd,
+            gram: Mat::zeros(0, 0),
+            lambda: Diag::zeros(0),
+            w: Vec::new(),
         };
-        h.reshape(rows, cols);
+        h.reshape(rows, cols, Decomposition::Svd);
         h
     }
 
-    fn reshape(&mut self, rows: usize, cols: usize) {
-        if (rows, cols) == (self.rows, self.cols) {
+    fn reshape(&mut self, rows: usize, cols: usize, decomposition: Decomposition) {
+        if (rows, cols, decomposition) == (self.rows, self.cols, self.decomposition) {
             return;
         }
-        let k = rows.min(cols);
         self.rows = rows;
         self.cols = cols;
+        self.decomposition = decomposition;
+        if decomposition == Decomposition::Eigen {
+            self.s = Diag::zeros(0);
+            self.u = Mat::zeros(rows, rows);
+            self.v = Mat::zeros(0, 0);
+            self.gram = Mat::zeros(rows, rows);
+            self.lambda = Diag::zeros(rows);
+            self.c = vec![0.0; rows];
+            self.w = vec![0.0; rows];
+            let req =
+                evd::self_adjoint_evd_scratch::<f64>(rows, ComputeEigenvectors::Yes, self.par, Default::default());
+            self.mem = MemBuffer::new(req);
+            return;
+        }
+        self.gram = Mat::zeros(0, 0);
+        self.lambda = Diag::zeros(0);
+        self.w = Vec::new();
+        let k = rows.min(cols);
         self.s = Diag::zeros(k);
         self.u = Mat::zeros(rows, k);
         self.v = Mat::zeros(cols, k);
@@ -132,18 +185,25 @@ impl HalfInverse {
         self.mem = MemBuffer::new(req);
     }
 
-    /// The singular values of the last solve, non-increasing.
+    /// The singular values of the last solve, non-increasing (on the eigen path
+    /// `sqrt(max(lambda_i, 0))`, `rows` of them).
     pub fn singular_values(&self) -> Vec<f64> {
+        if self.decomposition == Decomposition::Eigen {
+            let l = self.lambda.column_vector();
+            return (0..l.nrows()).rev().map(|i| l[i].max(0.0).sqrt()).collect();
+        }
         let s = self.s.column_vector();
         (0..s.nrows()).map(|i| s[i]).collect()
     }
 
-    /// Left singular vectors `U` (`rows x k`) of the last solve.
+    /// Left singular vectors `U` (`rows x k`) of the last solve. On the eigen path: the
+    /// eigenvectors of `J J^T` (`rows x rows`) in *ascending* order of their eigenvalues.
     pub fn u(&self) -> MatRef<'_, f64> {
         self.u.as_ref()
     }
 
-    /// Right singular vectors `V` (`cols x k`) of the last solve.
+    /// Right singular vectors `V` (`cols x k`) of the last SVD solve (empty on the eigen path,
+    /// which never forms `V`).
     pub fn v(&self) -> MatRef<'_, f64> {
         self.v.as_ref()
     }
@@ -166,7 +226,10 @@ impl HalfInverse {
             }
         }
         crate::error::check_finite("loss gradient", g, 1)?;
-        self.reshape(rows, cols);
+        self.reshape(rows, cols, cfg.decomposition);
+        if cfg.decomposition == Decomposition::Eigen {
+            return self.solve_eigen(cfg, j, g, out);
+        }
         let stack = MemStack::new(&mut self.mem);
         svd::svd(j, self.s.as_mut(), Some(self.u.as_mut()), Some(self.v.as_mut()), self.par, stack, Default::default())
             .map_err(|_| Error::SvdNoConvergence { rows, cols })?;
@@ -201,5 +264,54 @@ impl HalfInverse {
             }
         }
         Ok(SolveInfo { rank, s_max, s_min_kept })
+    }
+
+    /// The eigen path: `out = J^T U diag(lambda^(-(kappa+1)/2), truncated) U^T g`.
+    fn solve_eigen(&mut self, cfg: &HigConfig, j: MatRef<'_, f64>, g: &[f64], out: &mut [f64]) -> Result<SolveInfo> {
+        let (rows, cols) = j.shape();
+        matmul(self.gram.as_mut(), Accum::Replace, j, j.transpose(), 1.0, self.par);
+        let stack = MemStack::new(&mut self.mem);
+        evd::self_adjoint_evd(
+            self.gram.as_ref(),
+            self.lambda.as_mut(),
+            Some(self.u.as_mut()),
+            self.par,
+            stack,
+            Default::default(),
+        )
+        .map_err(|_| Error::SvdNoConvergence { rows, cols })?;
+        let l = self.lambda.column_vector();
+        let l_max = (0..rows).map(|i| l[i]).fold(0.0, f64::max);
+        let cutoff = cfg.tau * cfg.tau * l_max;
+        let power = -0.5 * (cfg.exponent + 1.0);
+        let (mut rank, mut l_min_kept) = (0, f64::INFINITY);
+        for i in 0..rows {
+            let li = l[i];
+            self.c[i] = if li > cutoff && li > 0.0 {
+                rank += 1;
+                l_min_kept = l_min_kept.min(li);
+                let ui = self.u.col(i);
+                let dot: f64 = (0..rows).map(|r| ui[r] * g[r]).sum();
+                dot * li.powf(power)
+            } else {
+                0.0
+            };
+        }
+        // w = U c, then out = J^T w (row after row of J).
+        self.w.fill(0.0);
+        for i in 0..rows {
+            let ci = self.c[i];
+            if ci != 0.0 {
+                let ui = self.u.col(i);
+                for (r, w) in self.w.iter_mut().enumerate() {
+                    *w += ui[r] * ci;
+                }
+            }
+        }
+        let wm = MatRef::from_column_major_slice(&self.w, rows, 1);
+        let mut o = faer::MatMut::from_column_major_slice_mut(out, cols, 1);
+        matmul(o.as_mut(), Accum::Replace, j.transpose(), wm, 1.0, self.par);
+        let s_min_kept = if rank > 0 { l_min_kept.sqrt() } else { 0.0 };
+        Ok(SolveInfo { rank, s_max: l_max.max(0.0).sqrt(), s_min_kept })
     }
 }

@@ -264,6 +264,9 @@ pub struct Curve {
     pub loss: Vec<f64>,
     /// Wall-clock seconds of every training step.
     pub step_seconds: Vec<f64>,
+    /// `Some(step)` when the loss became NaN/Inf at `step` and the run stopped there; the
+    /// curve holds the evaluations before it.
+    pub diverged_at: Option<u64>,
 }
 
 impl Curve {
@@ -290,6 +293,10 @@ impl Curve {
 
 /// Trains `net` with `method` and batch size `batch` over `train` (cycling through it in order),
 /// evaluating on `eval` every `eval_every` steps, until the budget is spent.
+///
+/// A non-finite training loss stops the run: the curve is returned with
+/// [`Curve::diverged_at`] set and `net` keeps the parameters of the last good step. A
+/// non-finite evaluation loss (after an update) also stops it; that point is not recorded.
 pub fn run_curve(
     net: &mut Mlp,
     physics: &dyn Physics,
@@ -321,23 +328,32 @@ pub fn run_curve(
     while elapsed < budget.seconds && step < budget.max_steps {
         let b = train.batch((step as usize % n_batches) * batch, batch);
         let t = Instant::now();
-        match (&mut hig, &mut adam) {
-            (Some(h), _) => h.step(net, physics, b)?,
-            (_, Some(a)) => a.step(net, physics, b)?,
+        let result = match (&mut hig, &mut adam) {
+            (Some(h), _) => h.step(net, physics, b),
+            (_, Some(a)) => a.step(net, physics, b),
             _ => unreachable!("one trainer is set"),
         };
+        match result {
+            Ok(_) => {}
+            Err(Error::Diverged { .. }) => {
+                curve.diverged_at = Some(step);
+                return Ok(curve);
+            }
+            Err(e) => return Err(e),
+        }
         let dt = t.elapsed().as_secs_f64();
         curve.step_seconds.push(dt);
         elapsed += dt;
         step += 1;
         if step % eval_every.max(1) == 0 || elapsed >= budget.seconds || step >= budget.max_steps {
             let loss = evaluate(net, physics, eval)?;
+            if !loss.is_finite() {
+                curve.diverged_at = Some(step);
+                return Ok(curve);
+            }
             curve.seconds.push(elapsed);
             curve.steps.push(step);
             curve.loss.push(loss);
-            if !loss.is_finite() {
-                return Err(Error::Diverged { step, loss, last_good: step.saturating_sub(1) });
-            }
         }
     }
     Ok(curve)

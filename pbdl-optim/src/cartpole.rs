@@ -1,0 +1,258 @@
+//! Cart-pole with `NC` poles on one cart, differentiable in candle (`f64`), and the stabilized
+//! BPTT experiment of Schnell & Thuerey (ICLR 2024) on it.
+//!
+//! Dynamics (per pole `i`, gravity `g`, pole mass `m`, total mass `M`, half length `l`):
+//!
+//! ```text
+//! A_i     = (F + m l sin th_i th_d_i^2) / M
+//! th_dd_i = (g sin th_i - cos th_i A_i) / (l (4/3 - m cos^2 th_i / M))
+//! x_dd    = (F + m l sum_i (sin th_i th_d_i^2 - th_dd_i cos th_i)) / M
+//! ```
+//!
+//! integrated by semi-implicit Euler (velocities first, then positions with the new
+//! velocities). `th = 0` is upright. The state of a sample is
+//! `[x, th_1..th_NC, x_d, th_d_1..th_d_NC]` (`2 (1 + NC)` values), which is also the
+//! controller's input; the controller outputs the force `F`. Episodes start hanging down,
+//! `th = pi +- U * pi / 6`, everything else `U[-1, 1]`; the loss is `1 - mean cos th` at the
+//! final step (0: all poles upright).
+//!
+//! [`train`] runs one configuration (gradient mode, clipping, Adam) and returns the test loss
+//! over training; the bench entry `cartpole` compares modes F, P and C for `NC = 1..4`.
+
+use crate::bptt::{gradients, GradientMode};
+use crate::error::Result;
+use candle_core::{DType, Device, Tensor, Var};
+use candle_nn::Optimizer;
+use pbdl_core::train::{AdamConfig, ClipConfig, OptimizerConfig};
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Physical constants and integration settings of a cart with `poles` poles.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CartPole {
+    /// Number of poles `NC` (at least 1).
+    pub poles: usize,
+    /// Gravity. Default `9.8`.
+    pub gravity: f64,
+    /// Mass of one pole. Default `0.1`.
+    pub pole_mass: f64,
+    /// Total mass `M` in the equations. Default `1.1`.
+    pub total_mass: f64,
+    /// Half pole length `l`. Default `0.5`.
+    pub half_length: f64,
+    /// Time step. Default `0.01`.
+    pub dt: f64,
+    /// Steps of an episode. Default `100`.
+    pub steps: usize,
+}
+
+impl CartPole {
+    /// The paper's settings with `poles` poles.
+    pub fn new(poles: usize) -> Self {
+        Self { poles, gravity: 9.8, pole_mass: 0.1, total_mass: 1.1, half_length: 0.5, dt: 0.01, steps: 100 }
+    }
+
+    /// Length of a state, `2 (1 + poles)`.
+    pub fn state_dim(&self) -> usize {
+        2 * (1 + self.poles)
+    }
+
+    /// One semi-implicit Euler step of a batch: `s: [b, state_dim]`, `force: [b, 1]`.
+    pub fn step(&self, s: &Tensor, force: &Tensor) -> candle_core::Result<Tensor> {
+        let nc = self.poles;
+        let (m, big_m, l) = (self.pole_mass, self.total_mass, self.half_length);
+        let x = s.narrow(1, 0, 1)?;
+        let th = s.narrow(1, 1, nc)?;
+        let xd = s.narrow(1, 1 + nc, 1)?;
+        let thd = s.narrow(1, 2 + nc, nc)?;
+        let (sin, cos) = (th.sin()?, th.cos()?);
+        let sin_thd2 = (&sin * thd.sqr()?)?;
+        // A_i = (F + m l sin th_i th_d_i^2) / M
+        let a = ((&sin_thd2 * (m * l))?.broadcast_add(force)? / big_m)?;
+        let denom = ((cos.sqr()? * (-m / big_m))? + 4.0 / 3.0)? * l;
+        let thdd = (((&sin * self.gravity)? - (&cos * &a)?)? / denom?)?;
+        let sum = (&sin_thd2 - (&thdd * &cos)?)?.sum_keepdim(1)?;
+        let xdd = ((force + (sum * (m * l))?)? / big_m)?;
+        let xd_new = (xd + (xdd * self.dt)?)?;
+        let thd_new = (thd + (thdd * self.dt)?)?;
+        let x_new = (x + (&xd_new * self.dt)?)?;
+        let th_new = (th + (&thd_new * self.dt)?)?;
+        Tensor::cat(&[x_new, th_new, xd_new, thd_new], 1)
+    }
+
+    /// `1 - mean cos th` over the batch and the poles of `s: [b, state_dim]`.
+    pub fn loss(&self, s: &Tensor) -> candle_core::Result<Tensor> {
+        s.narrow(1, 1, self.poles)?.cos()?.mean_all()?.affine(-1.0, 1.0)
+    }
+
+    /// `n` start states from `seed`: `th = pi +- U * pi / 6`, the rest `U[-1, 1]`.
+    pub fn initial_states(&self, n: usize, seed: u64) -> Result<Tensor> {
+        let mut rng = pbdl_core::seed::rng(seed);
+        let d = self.state_dim();
+        let mut v = Vec::with_capacity(n * d);
+        for _ in 0..n {
+            for k in 0..d {
+                let is_angle = (1..=self.poles).contains(&k);
+                let r: f64 = rng.random_range(-1.0..1.0);
+                v.push(if is_angle { std::f64::consts::PI + r * std::f64::consts::PI / 6.0 } else { r });
+            }
+        }
+        Ok(Tensor::from_vec(v, (n, d), &Device::Cpu)?)
+    }
+}
+
+/// The controller `2 (1 + NC) -> width -> width -> 1` with tanh hidden layers; the last layer
+/// starts at zero (as the official scripts effectively do), so training starts from `F = 0`.
+#[derive(Clone, Debug)]
+pub struct Controller {
+    vars: Vec<Var>,
+}
+
+impl Controller {
+    /// Glorot-uniform hidden weights from `seed`, zero biases and a zero last layer.
+    pub fn new(inputs: usize, width: usize, seed: u64) -> Result<Self> {
+        let mut rng = pbdl_core::seed::rng(seed);
+        let mut glorot = |a: usize, b: usize| -> Result<Var> {
+            let lim = (6.0 / (a + b) as f64).sqrt();
+            let v: Vec<f64> = (0..a * b).map(|_| rng.random_range(-lim..lim)).collect();
+            Ok(Var::from_tensor(&Tensor::from_vec(v, (a, b), &Device::Cpu)?)?)
+        };
+        let zeros = |shape: (usize, usize)| -> Result<Var> { Ok(Var::zeros(shape, DType::F64, &Device::Cpu)?) };
+        let vars = vec![
+            glorot(inputs, width)?,
+            zeros((1, width))?,
+            glorot(width, width)?,
+            zeros((1, width))?,
+            zeros((width, 1))?,
+            zeros((1, 1))?,
+        ];
+        Ok(Self { vars })
+    }
+
+    /// The trainable variables.
+    pub fn vars(&self) -> &[Var] {
+        &self.vars
+    }
+
+    /// The force `[b, 1]` for states `s: [b, inputs]`.
+    pub fn forward(&self, s: &Tensor) -> candle_core::Result<Tensor> {
+        let v = &self.vars;
+        let h = s.matmul(v[0].as_tensor())?.broadcast_add(v[1].as_tensor())?.tanh()?;
+        let h = h.matmul(v[2].as_tensor())?.broadcast_add(v[3].as_tensor())?.tanh()?;
+        h.matmul(v[4].as_tensor())?.broadcast_add(v[5].as_tensor())
+    }
+}
+
+/// Settings of one cart-pole training run.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CartPoleConfig {
+    /// The physics.
+    pub physics: CartPole,
+    /// Gradient mode.
+    pub mode: GradientMode,
+    /// Clipping of the (combined) gradient.
+    pub clip: ClipConfig,
+    /// Adam learning rate. Default `1e-3`.
+    pub lr: f64,
+    /// Batch size. Default `8`.
+    pub batch: usize,
+    /// Training episodes. Default `256`.
+    pub train: usize,
+    /// Test episodes. Default `256`.
+    pub test: usize,
+    /// Optimizer steps.
+    pub iterations: usize,
+    /// Evaluate the test loss every this many steps.
+    pub eval_every: usize,
+    /// Hidden width of the controller. Default `100`.
+    pub width: usize,
+    /// Seed of the data and the controller. Default `42`.
+    pub seed: u64,
+}
+
+impl CartPoleConfig {
+    /// The paper's settings for `poles` poles and `mode`, with `iterations` optimizer steps.
+    pub fn new(poles: usize, mode: GradientMode, iterations: usize) -> Self {
+        Self {
+            physics: CartPole::new(poles),
+            mode,
+            clip: ClipConfig::None,
+            lr: 1e-3,
+            batch: 8,
+            train: 256,
+            test: 256,
+            iterations,
+            eval_every: (iterations / 10).max(1),
+            width: 100,
+            seed: 42,
+        }
+    }
+}
+
+/// What a cart-pole run measured.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CartPoleRun {
+    /// Steps done at each evaluation.
+    pub steps: Vec<usize>,
+    /// Test loss `1 - mean cos th` at each evaluation.
+    pub test_loss: Vec<f64>,
+    /// Training seconds (evaluation excluded).
+    pub seconds: f64,
+    /// Mode C: mean fraction of gradient components whose signs agreed.
+    pub agreement: Option<f64>,
+}
+
+impl CartPoleRun {
+    /// The last test loss.
+    pub fn final_loss(&self) -> f64 {
+        self.test_loss.last().copied().unwrap_or(f64::NAN)
+    }
+}
+
+/// Test loss of `net` on `test` episodes (a forward rollout, no gradient).
+pub fn evaluate(physics: &CartPole, net: &Controller, test: &Tensor) -> Result<f64> {
+    let mut s = test.clone();
+    for _ in 0..physics.steps {
+        let f = net.forward(&s)?.detach();
+        s = physics.step(&s, &f)?.detach();
+    }
+    Ok(physics.loss(&s)?.to_scalar::<f64>()?)
+}
+
+/// Trains a fresh controller with `cfg` (Adam on the mode's gradient) and records the test loss.
+pub fn train(cfg: &CartPoleConfig) -> Result<CartPoleRun> {
+    let phys = cfg.physics;
+    let net = Controller::new(phys.state_dim(), cfg.width, cfg.seed)?;
+    let train = phys.initial_states(cfg.train, cfg.seed)?;
+    let test = phys.initial_states(cfg.test, cfg.seed + 1)?;
+    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, ..Default::default() }).build(net.vars().to_vec())?;
+    let mut run = CartPoleRun::default();
+    let eval = |run: &mut CartPoleRun, step: usize| -> Result<()> {
+        run.steps.push(step);
+        run.test_loss.push(evaluate(&phys, &net, &test)?);
+        Ok(())
+    };
+    eval(&mut run, 0)?;
+    let n_batches = (cfg.train / cfg.batch).max(1);
+    let (mut agree_sum, mut agree_n) = (0.0, 0usize);
+    let forward = |s: &Tensor| net.forward(s);
+    let step_fn = |s: &Tensor, u: &Tensor| phys.step(s, u);
+    let loss_fn = |traj: &[Tensor]| phys.loss(traj.last().expect("non-empty rollout"));
+    for it in 0..cfg.iterations {
+        let s0 = train.narrow(0, (it % n_batches) * cfg.batch, cfg.batch)?;
+        let t = Instant::now();
+        let g = gradients(cfg.mode, net.vars(), &s0, phys.steps, &forward, &step_fn, &loss_fn, &cfg.clip)?;
+        opt.step(&g.grads)?;
+        run.seconds += t.elapsed().as_secs_f64();
+        if let Some(a) = g.agreement {
+            agree_sum += a;
+            agree_n += 1;
+        }
+        if (it + 1) % cfg.eval_every.max(1) == 0 || it + 1 == cfg.iterations {
+            eval(&mut run, it + 1)?;
+        }
+    }
+    run.agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
+    Ok(run)
+}

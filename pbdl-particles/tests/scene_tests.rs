@@ -1,0 +1,161 @@
+//! Scenes: built-ins parse and run, steppers hold only the terms they need, bad scenes are
+//! typed errors naming the field, trajectories round-trip through `.npz`.
+
+use pbdl_particles::scene::{self, InitState, Scene, Stepper};
+use pbdl_particles::Error;
+
+fn field_of(r: pbdl_particles::Result<Stepper>) -> String {
+    match r {
+        Err(Error::SceneField { field, .. }) => field,
+        Err(e) => panic!("expected a SceneField error, got {e}"),
+        Ok(_) => panic!("expected an error"),
+    }
+}
+
+fn parse_field(text: &str) -> String {
+    match Scene::from_toml_str(text, "test") {
+        Err(Error::SceneField { field, .. }) => field,
+        Err(e) => panic!("expected a SceneField error, got {e}"),
+        Ok(_) => panic!("expected an error"),
+    }
+}
+
+#[test]
+fn builtin_scenes_build_and_run_one_frame() {
+    for name in scene::builtin_names() {
+        let sc = Scene::builtin(name).unwrap().with_frames(1);
+        let mut sim = sc.build(0, None).unwrap();
+        let frames = scene::run_frames(&sc, &mut sim, |_| {}).unwrap();
+        assert_eq!(frames.len(), 2);
+        let f = &frames[1];
+        assert!((f.time - sc.frame_dt).abs() < 1e-12, "{name}: t = {}", f.time);
+        let n = f.mass.len();
+        assert_eq!(f.positions.len(), n * sim.dim());
+        assert!(f.positions.iter().chain(&f.velocities).chain(&f.density).all(|v| v.is_finite()), "{name}");
+        eprintln!("{name}: {} particles, {} steps, operators {:?}", n, sim.steps(), sim.operators());
+    }
+}
+
+#[test]
+fn steppers_hold_only_the_terms_they_need() {
+    let ops = |text: &str| Scene::from_toml_str(text, "t").unwrap().build(0, None).unwrap().operators();
+    let box2 = Scene::builtin("periodic_2d_box").unwrap().build(0, None).unwrap().operators();
+    assert!(!box2.contains(&"wall_pressure_extrapolation") && !box2.contains(&"gravity"), "{box2:?}");
+    assert!(box2.contains(&"delta_sph_diffusion") && box2.contains(&"artificial_viscosity"));
+    let inviscid =
+        ops("name = \"b\"\nframes = 1\nframe_dt = 0.01\n[periodic_2d]\nn = 16\n[periodic_2d.wcsph]\nalpha = 0.0\n");
+    assert!(!inviscid.contains(&"artificial_viscosity"), "{inviscid:?}");
+    let dam = Scene::builtin("dam_break").unwrap().build(0, None).unwrap().operators();
+    assert!(dam.contains(&"wall_pressure_extrapolation") && dam.contains(&"gravity"), "{dam:?}");
+    let p1 = Scene::builtin("periodic_1d_noise").unwrap().build(0, None).unwrap().operators();
+    assert!(!p1.contains(&"fixed_ghosts") && p1.contains(&"artificial_viscosity"), "{p1:?}");
+    let tube = ops(
+        "name = \"s\"\nframes = 1\nframe_dt = 0.01\n[shock_tube]\nn = 100\n[shock_tube.sph]\nalpha = 0.0\nbeta = 0.0\n",
+    );
+    assert!(!tube.contains(&"artificial_viscosity") && tube.contains(&"fixed_ghosts"), "{tube:?}");
+    let iisph = Scene::builtin("dam_break_iisph").unwrap().build(0, None).unwrap().operators();
+    assert!(!iisph.contains(&"laminar_viscosity") && iisph.contains(&"pressure_solve_iisph"), "{iisph:?}");
+}
+
+#[test]
+fn shock_tube_scene_takes_custom_states() {
+    let text = "name = \"lax\"\nframes = 1\nframe_dt = 0.01\n[shock_tube]\nn = 200\ngamma = 1.4\n\
+                left = { rho = 0.445, u = 0.698, p = 3.528 }\nright = { rho = 0.5, u = 0.0, p = 0.571 }\n";
+    let sc = Scene::from_toml_str(text, "lax").unwrap();
+    let Stepper::Sph1d(sim) = sc.build(0, None).unwrap() else { panic!("not 1D") };
+    assert!((sim.v[0] - 0.698).abs() < 1e-12);
+}
+
+#[test]
+fn bad_scenes_are_typed_errors_naming_the_field() {
+    let base = |extra: &str| format!("name = \"x\"\nframes = 1\nframe_dt = 0.01\n{extra}");
+    // Unknown keys, at the top and inside sections.
+    assert_eq!(parse_field(&base("colour = 3\n[periodic_2d]\n")), "colour");
+    assert_eq!(parse_field(&base("[dam_break.geometry]\nwidth = 2.0\n")), "width");
+    assert_eq!(parse_field(&base("[shock_tube]\nleft = { rho = 1.0, u = 0.0, p = 1.0, t = 2.0 }\n")), "t");
+    // Zero smoothing lengths.
+    let sc = |extra: &str| Scene::from_toml_str(&base(extra), "x").unwrap();
+    assert_eq!(field_of(sc("[dam_break.wcsph]\nh_over_dx = 0.0\n").build(0, None)), "dam_break.wcsph.h_over_dx");
+    assert_eq!(
+        field_of(sc("[dam_break]\nsolver = \"iisph\"\n[dam_break.iisph]\nh_over_dx = 0.0\n").build(0, None)),
+        "dam_break.iisph.h_over_dx"
+    );
+    assert_eq!(field_of(sc("[shock_tube.sph]\neta = 0.0\n").build(0, None)), "shock_tube.sph.eta");
+    assert_eq!(field_of(sc("[periodic_2d.wcsph]\nh_over_dx = 0.0\n").build(0, None)), "periodic_2d.wcsph.h_over_dx");
+    assert_eq!(field_of(sc("[dam_break.geometry]\ndx = 0.0\n").build(0, None)), "dam_break.geometry.dx");
+    assert_eq!(field_of(sc("[periodic_1d]\nrho0 = -1.0\n").build(0, None)), "periodic_1d.rho0");
+    assert_eq!(field_of(sc("[shock_tube]\nx0 = 2.0\n").build(0, None)), "shock_tube.x0");
+    // Two sections, or none.
+    assert!(matches!(
+        Scene::from_toml_str(&base("[periodic_2d]\n[periodic_1d]\n"), "x"),
+        Err(Error::SceneField { .. })
+    ));
+    assert!(matches!(Scene::from_toml_str(&base(""), "x"), Err(Error::SceneField { .. })));
+    // Initial particles outside the domain, negative masses.
+    let box2 = sc("[periodic_2d]\nn = 16\n");
+    let outside = InitState { dim: 2, positions: vec![0.5, 0.5, 1.5, 0.5], ..Default::default() };
+    assert!(matches!(box2.build(0, Some(&outside)), Err(Error::OutsideDomain { index: 1, .. })));
+    let dam = Scene::builtin("dam_break_iisph").unwrap();
+    let outside = InitState { dim: 2, positions: vec![0.5, 0.5, 4.5, 0.5], ..Default::default() };
+    assert!(matches!(dam.build(0, Some(&outside)), Err(Error::OutsideDomain { index: 1, .. })));
+    let negative =
+        InitState { dim: 1, positions: vec![-0.5, 0.0, 0.5], mass: Some(vec![1.0, -1.0, 1.0]), ..Default::default() };
+    assert_eq!(field_of(sc("[periodic_1d]\nn = 32\n").build(0, Some(&negative))), "init.mass");
+}
+
+#[test]
+fn periodic_2d_box_conserves_momentum_and_seeds_differ() {
+    let sc = Scene::from_toml_str("name = \"b\"\nframes = 1\nframe_dt = 0.005\n[periodic_2d]\nn = 24\n", "b").unwrap();
+    let Stepper::Wcsph(mut sim) = sc.build(0, None).unwrap() else { panic!("not WCSPH") };
+    let m = sim.physics().mass;
+    let scale: f64 = sim.v.iter().map(|v| m * (v[0] * v[0] + v[1] * v[1]).sqrt()).sum();
+    let p0 = sim.momentum();
+    let mass0 = m * sim.n_fluid() as f64;
+    sim.run_until(0.005).unwrap();
+    let p1 = sim.momentum();
+    let drift = ((p1[0] - p0[0]).abs()).max((p1[1] - p0[1]).abs()) / scale;
+    eprintln!("periodic 2D box: {} steps, relative momentum drift {drift:.2e}", sim.steps());
+    assert!(drift <= 1e-13, "drift {drift:.2e}");
+    assert_eq!(sim.physics().mass * sim.n_fluid() as f64, mass0);
+    assert_eq!(sim.leaked(), 0);
+    let Stepper::Wcsph(other) = sc.build(1, None).unwrap() else { panic!() };
+    let Stepper::Wcsph(same) = sc.build(0, None).unwrap() else { panic!() };
+    assert_ne!(other.v, same.v);
+    let p1d = Scene::builtin("periodic_1d_noise").unwrap();
+    let (Stepper::Sph1d(a), Stepper::Sph1d(b)) = (p1d.build(0, None).unwrap(), p1d.build(1, None).unwrap()) else {
+        panic!()
+    };
+    assert_ne!(a.x, b.x);
+    let spread = a.rho.iter().fold(0.0f64, |s, r| s.max((r / 1000.0 - 1.0).abs()));
+    assert!(spread > 0.1 && spread < 0.4, "density perturbation {spread}");
+}
+
+#[test]
+fn trajectory_round_trips_through_npz_as_init() {
+    let dir = tempfile::tempdir().unwrap();
+    let sc = Scene::from_toml_str("name = \"b\"\nframes = 2\nframe_dt = 0.002\n[periodic_2d]\nn = 16\n", "b").unwrap();
+    let mut sim = sc.build(0, None).unwrap();
+    let frames = scene::run_frames(&sc, &mut sim, |_| {}).unwrap();
+    let files = scene::write_trajectory(&sim, &frames, dir.path(), "b").unwrap();
+    for f in &files {
+        assert!(f.exists(), "{}", f.display());
+    }
+    let arrays = pbdl_core::io::read_npz(&files[0]).unwrap();
+    let shape = |n: &str| arrays.iter().find(|(k, _)| k == n).unwrap().1.dims().to_vec();
+    assert_eq!(shape("positions"), vec![3, 256, 2]);
+    assert_eq!(shape("velocities"), vec![3, 256, 2]);
+    assert_eq!(shape("density"), vec![3, 256]);
+    assert_eq!(shape("mass"), vec![3, 256]);
+    let init = InitState::from_arrays(&arrays).unwrap();
+    let Stepper::Wcsph(restart) = sc.build(0, Some(&init)).unwrap() else { panic!() };
+    let last = frames.last().unwrap();
+    assert_eq!(restart.x.iter().flatten().copied().collect::<Vec<_>>(), last.positions);
+    assert_eq!(restart.v.iter().flatten().copied().collect::<Vec<_>>(), last.velocities);
+    // Dam break with walls: fixed particles are written too.
+    let dam = Scene::builtin("dam_break_iisph").unwrap().with_frames(1);
+    let mut sim = dam.build(0, None).unwrap();
+    let frames = scene::run_frames(&dam, &mut sim, |_| {}).unwrap();
+    let files = scene::write_trajectory(&sim, &frames, dir.path(), "dam").unwrap();
+    let arrays = pbdl_core::io::read_npz(&files[0]).unwrap();
+    assert!(arrays.iter().any(|(k, _)| k == "fixed_positions"));
+}
