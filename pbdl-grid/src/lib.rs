@@ -23,7 +23,7 @@
 //! | [`fluid`] | [`Fluid`]: smoke plume / obstacle-flow stepper (semi-Lagrangian or MacCormack, buoyancy, inflow, implicit viscosity, obstacles), listing its operators |
 //! | [`navier_stokes`] | [`NavierStokes`]: a stepper built from a config, listing its operators |
 //! | [`error`] | [`Error`], [`Result`] |
-//! | [`mod@tasks`] | [`tasks()`]: the `cargo xtask bench grid` entry (Taylor-Green time vs error) |
+//! | [`mod@tasks`] | [`tasks()`]: the `cargo xtask` tour (Taylor-Green, cavity, Burgers, smoke plume, Karman street), bench and stress entries |
 //!
 //! Conventions: tensors `[batch, channel, ny, nx]`, x fastest, `f32` or `f64`. A MAC velocity has
 //! two channels, `u` on x-faces at `((i+1) dx, (j+1/2) dy)` and `v` on y-faces at

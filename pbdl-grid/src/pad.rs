@@ -5,6 +5,7 @@
 //! so corners see the row ghosts; the adjoint undoes the passes in reverse order.
 
 use crate::boundary::{Ghost, Ghosts};
+use crate::scratch::zeros;
 use pbdl_core::Real;
 use rayon::prelude::*;
 
@@ -20,6 +21,41 @@ where
         out.par_chunks_mut(row_len).with_min_len(8).enumerate().for_each(|(j, r)| f(j, r));
     } else {
         out.chunks_mut(row_len).enumerate().for_each(|(j, r)| f(j, r));
+    }
+}
+
+/// Runs `f(row, acc)` for `rows` rows, each adding into an accumulator as long as `acc`, and
+/// adds everything into `acc`. In parallel for large grids: the rows are split into one block
+/// per thread, each block adds into a private zeroed buffer, and the buffers are summed in
+/// block order (deterministic for a given thread count). For scatter-adds (the adjoints of
+/// gathers), whose rows write to overlapping places.
+pub(crate) fn accumulate_rows<T: Real, F>(acc: &mut [T], rows: usize, parallel: bool, f: F)
+where
+    F: Fn(usize, &mut [T]) + Sync + Send,
+{
+    let parts = if parallel { rayon::current_num_threads().min(rows) } else { 1 };
+    if parts <= 1 {
+        for j in 0..rows {
+            f(j, acc);
+        }
+        return;
+    }
+    let chunk = rows.div_ceil(parts);
+    let len = acc.len();
+    let partial: Vec<_> = (0..parts)
+        .into_par_iter()
+        .map(|p| {
+            let mut b = zeros::<T>(len);
+            for j in p * chunk..((p + 1) * chunk).min(rows) {
+                f(j, &mut b);
+            }
+            b
+        })
+        .collect();
+    for b in &partial {
+        for (a, x) in acc.iter_mut().zip(b.iter()) {
+            *a += *x;
+        }
     }
 }
 

@@ -13,9 +13,15 @@
 //! * stress `decaying_turbulence`, `decaying_taylor_green`: unforced flows stay finite and
 //!   divergence-free and never gain energy; `kolmogorov`: the forced flow stays finite,
 //!   divergence-free and bounded. Each check names the first step at which it broke.
-//!
-//! The smoke plume and the Karman street (tour renders, 10,000-step stress, Re = 1000) are not
-//! registered yet: their scenes need the smoke and cylinder steppers.
+//! * tour `smoke_plume`: the embedded plume scene (64 x 96, 400 MacCormack steps; 32 x 48 and 150
+//!   steps when quick); density PNG + GIF, the density mass against what the source injected.
+//! * tour `karman_street`: the embedded cylinder scene (Re = 100, 32 D x 32 D, blockage 1/32) at
+//!   5 cells per diameter (4 and t = 90 when quick); vorticity PNG + GIF and the Strouhal number
+//!   from a probe against Williamson's 0.165.
+//! * stress `smoke_plume_long`: 10,000 plume steps at 128^2 (500 quick): finite, divergence
+//!   bounded, density within [0, injected], speed bounded.
+//! * stress `karman_re1000`: the cylinder scene at Re = 1000: finite, divergence bounded, speed
+//!   bounded.
 
 use crate::burgers::cole_hopf_sine;
 use crate::scene::{write_trajectory, Scene, Simulation, State};
@@ -47,6 +53,16 @@ pub fn tasks() -> CrateTasks {
                 about: "1D viscous Burgers from -sin(pi x), 256 cells, t = 0.5, against the Cole-Hopf solution.",
                 run: tour_burgers,
             },
+            Entry {
+                name: "smoke_plume",
+                about: "Buoyant smoke plume (embedded scene, 64 x 96, 400 MacCormack steps); density PNG + GIF.",
+                run: tour_smoke,
+            },
+            Entry {
+                name: "karman_street",
+                about: "Flow past a cylinder at Re = 100 (blockage 1/32): vorticity PNG + GIF, Strouhal number vs Williamson (1996).",
+                run: tour_karman,
+            },
         ],
         bench: vec![
             Entry {
@@ -76,6 +92,16 @@ pub fn tasks() -> CrateTasks {
                 name: "kolmogorov",
                 about: "Forced Kolmogorov flow to t = 60 (10 quick) at 64^2: finite, divergence-free, energy bounded.",
                 run: stress_kolmogorov,
+            },
+            Entry {
+                name: "smoke_plume_long",
+                about: "Smoke plume, 10,000 steps at 128^2 (500 quick): finite, divergence bounded, density in [0, injected].",
+                run: stress_smoke,
+            },
+            Entry {
+                name: "karman_re1000",
+                about: "Flow past a cylinder at Re = 1000 to t = 150 (t = 20 quick): finite, divergence bounded, speed bounded.",
+                run: stress_karman,
             },
         ],
     }
@@ -323,8 +349,14 @@ struct Invariants {
     energy0: f64,
     energy_last: f64,
     max_energy: f64,
+    /// First step with `max |u| > SPEED_CAP`.
+    first_fast: Option<u64>,
+    max_speed: f64,
     error: Option<String>,
 }
+
+/// Speed cap of [`track`] (5 U for the unit-inflow cylinder; the other flows stay far below).
+const SPEED_CAP: f64 = 5.0;
 
 fn energy(u: &MacField) -> candle_core::Result<f64> {
     Ok(0.5 * u.values().to_dtype(DType::F64)?.sqr()?.sum_all()?.to_scalar::<f64>()? * u.grid().dx() * u.grid().dy())
@@ -353,6 +385,8 @@ fn track(
         energy0: e0,
         energy_last: e0,
         max_energy: e0,
+        first_fast: None,
+        max_speed: 0.0,
         error: None,
     };
     let mut prev = e0;
@@ -365,6 +399,10 @@ fn track(
         let State::Velocity(u) = sim.state() else { unreachable!() };
         let m = u.max_abs()?;
         let e = energy(u)?;
+        inv.max_speed = inv.max_speed.max(m);
+        if m > SPEED_CAP {
+            inv.first_fast.get_or_insert(k);
+        }
         if !(m.is_finite() && e.is_finite()) {
             inv.first_nonfinite.get_or_insert(k);
             break;
@@ -521,4 +559,306 @@ fn bench_taylor_green(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         }
     }
     Ok(rows)
+}
+
+fn scalar_sum(t: &Tensor) -> candle_core::Result<f64> {
+    t.to_dtype(DType::F64)?.sum_all()?.to_scalar::<f64>()
+}
+
+fn min_max(t: &Tensor) -> candle_core::Result<(f64, f64)> {
+    let t = t.to_dtype(DType::F64)?;
+    Ok((t.min_all()?.to_scalar::<f64>()?, t.max_all()?.to_scalar::<f64>()?))
+}
+
+/// The smoke scene's source: `(rate, cells covered)`.
+fn smoke_source(sim: &Simulation) -> TaskResult<(f64, f64)> {
+    let crate::scene::Physics::Smoke { source, .. } = sim.scene().physics else {
+        return Err("smoke_plume is a smoke scene".into());
+    };
+    let g = sim.scene().grid;
+    let (dx, dy) = (g.lx / g.nx as f64, g.ly / g.ny as f64);
+    let mut cells = 0.0;
+    for j in 0..g.ny {
+        for i in 0..g.nx {
+            let (x, y) = (g.origin[0] + (i as f64 + 0.5) * dx, g.origin[1] + (j as f64 + 0.5) * dy);
+            if (x - source.center[0]).powi(2) + (y - source.center[1]).powi(2) <= source.radius * source.radius {
+                cells += 1.0;
+            }
+        }
+    }
+    Ok((source.rate, cells))
+}
+
+fn tour_smoke(ctx: &TaskContext) -> TaskResult<TourOutcome> {
+    let mut scene = Scene::builtin("smoke_plume")?;
+    if ctx.quick {
+        scene = scene.with_resolution(32).with_steps(150);
+    }
+    let mut sim = scene.build()?;
+    let t = Instant::now();
+    let traj = sim.run(|_| {})?;
+    let seconds = t.elapsed().as_secs_f64();
+    let (Some(rho), Some(u)) = (sim.state().density(), sim.state().velocity()) else {
+        return Err("smoke_plume has a density and a velocity".into());
+    };
+    // Mass: the source adds dt * rate to each covered cell every step; the closed box and the
+    // zero-gradient density keep it all (up to MacCormack's non-conservation).
+    let (rate, cells) = smoke_source(&sim)?;
+    let injected = sim.step_index() as f64 * sim.dt() * rate * cells;
+    let mass = scalar_sum(rho.values())?;
+    let mass_err = (mass - injected).abs() / injected;
+    let (lo, hi) = min_max(rho.values())?;
+    let g = sim.scene().grid;
+    let vals = rho.values().to_dtype(DType::F64)?.flatten_all()?.to_vec1::<f64>()?;
+    let centre_y = vals.iter().enumerate().map(|(k, r)| r * ((k / g.nx) as f64 + 0.5)).sum::<f64>() / mass.max(1e-300)
+        * g.ly
+        / g.ny as f64;
+    let div = fd::divergence(u)?.into_values().abs()?.max_all()?.to_dtype(DType::F64)?.to_scalar::<f64>()?;
+    let umax = u.max_abs()?;
+    let files = write_trajectory(&sim, &traj, &ctx.out_dir)?;
+    let steps = sim.step_index();
+    let markdown = format!(
+        "{}x{}, f32, {steps} steps of dt = {:.3e} to t = {:.2} (operators: {}) in {seconds:.2} s ({:.3} ms/step). \
+         Density in [{lo:.2e}, {hi:.3}], mass {mass:.4} against {injected:.4} injected (relative difference \
+         {mass_err:.2e}: MacCormack with its limiter is not exactly conservative); density centre of mass at \
+         y = {centre_y:.3} (source at y = 0.15); max |u| = {umax:.3}, max |div u| dx / max |u| = {:.1e}.\n\n{}",
+        g.nx,
+        g.ny,
+        sim.dt(),
+        sim.time(),
+        sim.operators().join(", "),
+        1e3 * seconds / steps as f64,
+        div * g.lx / g.nx as f64 / umax.max(1e-300),
+        files_markdown(&files, ctx)
+    );
+    Ok(TourOutcome {
+        rows: vec![TourRow {
+            item: format!("smoke_plume {}x{} f32, {steps} steps", g.nx, g.ny),
+            seconds,
+            error: Some(mass_err),
+            error_kind: "rel |density mass - injected|".into(),
+            note: format!("centre of mass y = {centre_y:.3}, max |u| {umax:.3}"),
+        }],
+        files,
+        markdown,
+    })
+}
+
+/// Williamson (1996), Annu. Rev. Fluid Mech. 28:477-539: unconfined cylinder, Re = 100.
+const ST_WILLIAMSON: f64 = 0.165;
+
+/// The first circle of a cylinder scene: `(centre, diameter)`.
+fn first_circle(scene: &Scene) -> TaskResult<([f64; 2], f64)> {
+    scene
+        .obstacles
+        .iter()
+        .find_map(|o| match *o {
+            crate::scene::Obstacle::Circle { center, radius } => {
+                Some(([center[0] - scene.grid.origin[0], center[1] - scene.grid.origin[1]], 2.0 * radius))
+            }
+            _ => None,
+        })
+        .ok_or_else(|| "the cylinder scene has no circle".into())
+}
+
+/// Strouhal number `D / (period U)` from the upward zero crossings (about the mean) of a probe
+/// signal sampled every `dt`, over its second half; `(St, periods)`, NaN with fewer than 3
+/// crossings.
+fn strouhal(signal: &[f64], dt: f64, d: f64, u: f64) -> (f64, usize) {
+    let half = &signal[signal.len() / 2..];
+    let mean = half.iter().sum::<f64>() / half.len().max(1) as f64;
+    let mut cross = Vec::new();
+    for k in 1..half.len() {
+        let (a, b) = (half[k - 1] - mean, half[k] - mean);
+        if a < 0.0 && b >= 0.0 {
+            cross.push((k - 1) as f64 + a / (a - b));
+        }
+    }
+    if cross.len() < 3 {
+        return (f64::NAN, 0);
+    }
+    let period = (cross[cross.len() - 1] - cross[0]) / (cross.len() - 1) as f64 * dt;
+    (d / (period * u), cross.len() - 1)
+}
+
+fn tour_karman(ctx: &TaskContext) -> TaskResult<TourOutcome> {
+    let mut scene = Scene::builtin("cylinder")?;
+    // Quick mode: 4 cells/D to t = 90 (3 cells/D does not shed by t = 60).
+    let cells_per_d = if ctx.quick { 4 } else { KARMAN_CELLS_PER_D };
+    let (centre, d) = first_circle(&scene)?;
+    let n = (scene.grid.lx / d * cells_per_d as f64).round() as usize;
+    scene = scene.with_resolution(n);
+    if ctx.quick {
+        scene.time.t_end = Some(90.0);
+        scene.time.frames = 31;
+    }
+    let mut sim = scene.build()?;
+    let grid = *sim.grid().ok_or("cylinder is 2D")?;
+    let crate::scene::Physics::Cylinder { inflow, nu, .. } = sim.scene().physics else {
+        return Err("cylinder physics".into());
+    };
+    // Probe: the v face nearest to 1.5 D behind the cylinder on its axis.
+    let pi = ((centre[0] + 1.5 * d) / grid.dx() - 0.5).round() as usize;
+    let pj = (centre[1] / grid.dy() - 1.0).round() as usize;
+    let idx = grid.cells() + pj * grid.nx + pi;
+    let mut signal = Vec::with_capacity(sim.steps());
+    let t = Instant::now();
+    let mut probe_err = None;
+    let traj = sim.run_observed(|s, _| {
+        let v = s
+            .velocity()
+            .map(|u| u.values().flatten_all().and_then(|f| f.get(idx)).and_then(|x| x.to_dtype(DType::F64)))
+            .and_then(|r| r.ok())
+            .and_then(|x| x.to_scalar::<f64>().ok());
+        match v {
+            Some(v) => signal.push(v),
+            None => probe_err = Some("probe read failed"),
+        }
+    })?;
+    let seconds = t.elapsed().as_secs_f64();
+    if let Some(e) = probe_err {
+        return Err(e.into());
+    }
+    let (st, periods) = strouhal(&signal, sim.dt(), d, inflow);
+    let rel = (st - ST_WILLIAMSON).abs() / ST_WILLIAMSON;
+    let tail = &signal[2 * signal.len() / 3..];
+    let amp = tail.iter().cloned().fold(f64::MIN, f64::max) - tail.iter().cloned().fold(f64::MAX, f64::min);
+    let files = write_trajectory(&sim, &traj, &ctx.out_dir)?;
+    let steps = sim.step_index();
+    let blockage = d / grid.ly;
+    let re = inflow * d / nu;
+    let markdown = format!(
+        "Re = {re:.0}, {}x{} ({cells_per_d} cells per diameter), f32, {steps} steps of dt = {:.3e} to t = {:.0} D/U \
+         (operators: {}) in {seconds:.2} s ({:.3} ms/step). Transverse velocity 1.5 D behind the cylinder: \
+         peak-to-peak {amp:.3} U over the last third; Strouhal number {st:.4} from {periods} periods in the \
+         second half, against Williamson's (1996) 0.165 for the unconfined cylinder: {:.1}% off. Blockage \
+         D/H = 1/{:.0} (free-slip walls 16 D from the axis), a staircase cylinder. The accuracy test \
+         (`cargo test -p pbdl-grid --test cylinder -- --ignored`, 8 cells/D, central flux form + RK4) asks for 5%.\n\n{}",
+        grid.nx,
+        grid.ny,
+        sim.dt(),
+        sim.time(),
+        sim.operators().join(", "),
+        1e3 * seconds / steps as f64,
+        100.0 * rel,
+        1.0 / blockage,
+        files_markdown(&files, ctx)
+    );
+    Ok(TourOutcome {
+        rows: vec![TourRow {
+            item: format!("karman_street Re{re:.0} {}x{} f32 ({cells_per_d} cells/D)", grid.nx, grid.ny),
+            seconds,
+            error: Some(rel),
+            error_kind: "rel |St - 0.165| (Williamson 1996)".into(),
+            note: format!("St = {st:.4}, {periods} periods, blockage D/H = 1/{:.0}", 1.0 / blockage),
+        }],
+        files,
+        markdown,
+    })
+}
+
+/// Cells per cylinder diameter of the full tour's Karman street. Measured on this 2-core machine
+/// (central flux form + RK4, CFL 0.7 on 1.5 U, t = 120 D/U; St against 0.165): 4 cells/D
+/// (128^2): St = 0.1580 in 4.4 s; 5 cells/D (160^2): 0.1693 in 15 s; 6 cells/D (192^2): 0.1643
+/// in 40 s (the masked sparse Cholesky solve dominates and grows much faster than the cell
+/// count). MacCormack at CFL 1.5 damps the wake: 0.143 / 0.148 / 0.156 at 4 / 6 / 8 cells/D.
+const KARMAN_CELLS_PER_D: usize = 5;
+
+fn stress_smoke(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    let steps = if ctx.quick { 500 } else { 10_000 };
+    // A square 128^2 version of the embedded plume.
+    let text = include_str!("../scenes/smoke_plume.toml").replace("ny = 96", "ny = 64").replace("ly = 1.5", "ly = 1.0");
+    let mut sim = Scene::from_toml_str(&text, "smoke_plume_long")?.with_resolution(128).with_steps(steps).build()?;
+    let (rate, _) = smoke_source(&sim)?;
+    let g = *sim.grid().ok_or("2D")?;
+    let (mut first_nonfinite, mut first_div, mut first_rho, mut first_speed) = (None, None, None, None);
+    let (mut worst_div, mut rho_lo, mut rho_hi, mut umax_seen) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let mut error = None;
+    // Speed bound: free fall of the densest fluid over the box height, sqrt(2 beta rho_max H),
+    // far above anything the plume reaches; density bound: what the source can put in one cell.
+    for k in 1..=steps as u64 {
+        if let Err(e) = sim.step() {
+            error = Some(format!("step {k}: {e}"));
+            first_nonfinite.get_or_insert(k);
+            break;
+        }
+        let (Some(u), Some(rho)) = (sim.state().velocity(), sim.state().density()) else {
+            return Err("smoke state".into());
+        };
+        let m = u.max_abs()?;
+        let (lo, hi) = min_max(rho.values())?;
+        if !(m.is_finite() && lo.is_finite() && hi.is_finite()) {
+            first_nonfinite.get_or_insert(k);
+            break;
+        }
+        let div = fd::divergence(u)?.into_values().abs()?.max_all()?.to_dtype(DType::F64)?.to_scalar::<f64>()?;
+        let rel = div * g.dx() / m.max(f64::MIN_POSITIVE);
+        worst_div = worst_div.max(rel);
+        if rel > DIV_BOUND_F32 {
+            first_div.get_or_insert(k);
+        }
+        let injected_max = k as f64 * sim.dt() * rate;
+        rho_lo = rho_lo.min(lo);
+        rho_hi = rho_hi.max(hi);
+        if lo < -1e-4 * injected_max || hi > injected_max * (1.0 + 1e-4) {
+            first_rho.get_or_insert(k);
+        }
+        umax_seen = umax_seen.max(m);
+        let bound = (2.0 * injected_max * g.ly).sqrt().max(1.0);
+        if m > bound {
+            first_speed.get_or_insert(k);
+        }
+    }
+    let detail = |s: String| format!("128^2 f32, dt = {:.3e}, t = {:.1}: {s}", sim.dt(), sim.time());
+    Ok(vec![
+        StressCheck {
+            invariant: "values finite (and every step succeeds)".into(),
+            passed: first_nonfinite.is_none(),
+            first_broken_step: first_nonfinite,
+            detail: detail(error.unwrap_or_else(|| format!("{steps} steps"))),
+        },
+        StressCheck {
+            invariant: format!("max |div u| dx / max |u| <= {DIV_BOUND_F32:.0e} after every step"),
+            passed: first_div.is_none(),
+            first_broken_step: first_div,
+            detail: detail(format!("worst {worst_div:.2e}")),
+        },
+        StressCheck {
+            invariant: "density within [0, rate t] (limited MacCormack stays bounded)".into(),
+            passed: first_rho.is_none(),
+            first_broken_step: first_rho,
+            detail: detail(format!("density range seen [{rho_lo:.3e}, {rho_hi:.4}]")),
+        },
+        StressCheck {
+            invariant: "max |u| <= sqrt(2 beta rate t H) (free fall of the densest possible smoke)".into(),
+            passed: first_speed.is_none(),
+            first_broken_step: first_speed,
+            detail: detail(format!("largest max |u| {umax_seen:.3}")),
+        },
+    ])
+}
+
+fn stress_karman(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    let text = include_str!("../scenes/cylinder.toml").replace("nu = 0.01", "nu = 0.001");
+    let t_end = if ctx.quick { 20.0 } else { 150.0 };
+    let mut scene = Scene::from_toml_str(&text, "karman_re1000")?;
+    scene.time.t_end = Some(t_end);
+    let mut sim = scene.build()?;
+    let steps = sim.steps();
+    let inv = track(&mut sim, steps, false, DIV_BOUND_F32, 0.0, f64::INFINITY)?;
+    let mut c = checks(&inv, steps, false, DIV_BOUND_F32, 0.0);
+    // Speed: potential flow peaks at 2 U on the cylinder; allow 5 U.
+    let first_fast = inv.first_fast;
+    c.push(StressCheck {
+        invariant: "max |u| <= 5 U".into(),
+        passed: first_fast.is_none(),
+        first_broken_step: first_fast,
+        detail: format!("largest max |u| {:.3}", inv.max_speed),
+    });
+    let g = sim.scene().grid;
+    for x in &mut c {
+        x.detail =
+            format!("Re = 1000, {}x{} f32, dt = {:.3e}, t = {:.0}: {}", g.nx, g.ny, sim.dt(), sim.time(), x.detail);
+    }
+    Ok(c)
 }

@@ -76,6 +76,34 @@ fn velocity_self_advection_gradients_match_finite_differences() {
     }
 }
 
+/// Above 96^2 cells the backward kernels scatter row blocks in parallel into private buffers;
+/// the gradients must still match finite differences (probes spread over the grid).
+#[test]
+fn row_parallel_gradients_match_finite_differences() {
+    let g = Grid::new(100, 97, 1.0, 0.97).unwrap();
+    let (vbc, sbc) = cases().swap_remove(2);
+    let q = rand((1, 1, 97, 100), 401, 1.0);
+    let u = rand((1, 2, 97, 100), 402, 1.0);
+    let (wa, wb) = (rand((1, 1, 97, 100), 403, 1.0), rand((1, 2, 97, 100), 404, 1.0));
+    // Departure points several cells away (dt / dx = 3).
+    let dt = 0.03;
+    for mc in [false, true] {
+        let f = |xs: &[Tensor]| -> candle_core::Result<Tensor> {
+            let q = CenteredField::new(xs[0].clone(), g, sbc)?;
+            let u = MacField::new(xs[1].clone(), g, vbc)?;
+            let a = if mc { mac_cormack(&q, &u, dt)? } else { semi_lagrangian(&q, &u, dt)? };
+            let b = if mc { mac_cormack(&u, &u, dt)? } else { semi_lagrangian(&u, &u, dt)? };
+            // Random weights keep the check to one output of moderate size (FD round-off).
+            let l = (a.values().mul(&wa)?.sum_all()? + b.values().mul(&wb)?.sum_all()?)?;
+            l.reshape(1)
+        };
+        let r =
+            check_grad(f, &[q.clone(), u.clone()], &GradCheckOptions { max_probes: 24, ..Default::default() }).unwrap();
+        eprintln!("100x97 mc={mc}: max rel error {:.2e}", r.max_rel_error);
+        r.ensure(TOL).unwrap_or_else(|e| panic!("mc={mc}: {e}"));
+    }
+}
+
 /// Relative L2 error of a Gaussian carried around a periodic box by a uniform velocity at CFL
 /// 0.7 per step until it is back where it started; also checks that no new extrema appear (the
 /// limiter's promise; SL is a convex combination).

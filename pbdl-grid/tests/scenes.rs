@@ -64,7 +64,16 @@ fn steppers_hold_only_the_operators_their_scene_needs() {
     );
     // Cylinder: obstacles and the masked solve, implicit viscosity, no density, no buoyancy.
     let cyl = ops("cylinder");
-    assert_eq!(cyl, ["advect.mac_cormack(velocity)", "diffuse.implicit", "obstacles", "pressure.masked_cholesky"]);
+    assert_eq!(
+        cyl,
+        [
+            "advect.flux_form(velocity)",
+            "diffuse.explicit",
+            "obstacles",
+            "pressure.masked_cholesky",
+            "time_stepping.rk4"
+        ]
+    );
     assert!(!cyl.iter().any(|o| o.contains("density") || o.starts_with("buoyancy") || o.starts_with("source")));
     // Obstacles only where the scene has some; buoyancy only where it has a density.
     let no_obstacle = include_str!("../scenes/cylinder.toml").split("[[obstacles]]").next().unwrap().to_string()
@@ -233,4 +242,36 @@ fn set_fields_round_trips_a_centred_velocity() {
     // Missing names are an error naming what the file has.
     let err = sim.set_fields(&[("density".into(), before[0].1.clone())]).unwrap_err();
     assert!(err.to_string().contains("density"), "{err}");
+}
+
+/// The smoke scene through the scene API: the density field is written, the plume rises, the
+/// velocity stays divergence-free, and `set_fields` takes a density alone (keeping the velocity).
+#[test]
+fn smoke_scene_rises_and_takes_a_density() {
+    let mut sim = Scene::builtin("smoke_plume").unwrap().with_resolution(32).with_steps(80).build().unwrap();
+    let centre = |sim: &pbdl_grid::scene::Simulation| {
+        let rho = values(sim.state().density().unwrap().values());
+        let m: f64 = rho.iter().sum();
+        rho.iter().enumerate().map(|(k, r)| r * ((k / 32) as f64 + 0.5)).sum::<f64>() / m
+    };
+    sim.run(|_| {}).unwrap();
+    let names: Vec<String> = sim.fields().unwrap().into_iter().map(|(n, _)| n).collect();
+    assert_eq!(names, ["density", "velocity", "velocity_mac", "vorticity"]);
+    let y1 = centre(&sim);
+    sim = Scene::builtin("smoke_plume").unwrap().with_resolution(32).with_steps(160).build().unwrap();
+    sim.run(|_| {}).unwrap();
+    let y2 = centre(&sim);
+    let u = sim.state().velocity().unwrap();
+    let div = fd::divergence(u).unwrap().into_values().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+    let rel = div as f64 * u.grid().dx() / u.max_abs().unwrap();
+    eprintln!("smoke scene 32x48: density centre (cells) {y1:.2} -> {y2:.2}, max|div u| dx/max|u| {rel:.1e}");
+    assert!(y2 > y1 + 1.0, "plume does not rise: {y1} -> {y2}");
+    assert!(rel < 1e-4, "{rel}");
+    // A density alone replaces the density and keeps the velocity.
+    let before = values(u.values());
+    let rho = candle_core::Tensor::ones((48, 32), DType::F32, &candle_core::Device::Cpu).unwrap();
+    let used = sim.set_fields(&[("density".into(), rho)]).unwrap();
+    assert_eq!(used, ["density"]);
+    assert_eq!(values(sim.state().velocity().unwrap().values()), before);
+    assert!(values(sim.state().density().unwrap().values()).iter().all(|v| *v == 1.0));
 }

@@ -3,6 +3,10 @@
 //! * bench `linear_chain`, `oscillators`: test loss against training wall-clock for HIG, Adam
 //!   and Gauss-Newton, each with the same time budget (PNG line plot + rows whose `error` is the
 //!   final test loss and `seconds` the median step time).
+//! * bench `cartpole`: final test loss of stabilized-BPTT modes F, P, C for 1-4 poles
+//!   (shortened runs) and a PNG of loss against the number of poles.
+//! * bench `racecar_alignment`: alignment of the first layer's leading singular vectors with
+//!   the training data span, racecar vs plain (`error` is the smallest `|cos|`, higher is better).
 //! * tour `hig_vs_adam`: the same on the linear chain with a short budget.
 
 use crate::hig::{run_curve, Budget, Curve, Decomposition, HigConfig, Method};
@@ -37,6 +41,11 @@ pub fn tasks() -> CrateTasks {
                 name: "cartpole",
                 about: "Stabilized BPTT: final test loss of gradient modes F, P, C on cart-pole with 1-4 poles (short runs).",
                 run: bench_cartpole,
+            },
+            Entry {
+                name: "racecar_alignment",
+                about: "racecar vs plain training: |cos| of the first layer's leading singular vectors with the span of the training inputs.",
+                run: bench_racecar_alignment,
             },
         ],
         stress: vec![],
@@ -253,7 +262,7 @@ fn bench_cartpole(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         .map(|((name, _), ys)| Series::new(format!("mode {name}"), xs.clone(), ys.clone()))
         .collect();
     line_plot(
-        &ctx.out_dir.join("cartpole_modes.png"),
+        ctx.out_dir.join("cartpole_modes.png"),
         &series,
         &PlotStyle {
             title: format!("cart-pole: test loss after {iterations} Adam steps (lr 1e-2, b 8)"),
@@ -262,5 +271,33 @@ fn bench_cartpole(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
             ..Default::default()
         },
     )?;
+    Ok(rows)
+}
+
+fn bench_racecar_alignment(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    use crate::racecar::{alignment_experiment, AlignmentConfig};
+    let seeds = if ctx.quick { 1 } else { 3 };
+    let mut rows = Vec::new();
+    for seed in 0..seeds {
+        let cfg = AlignmentConfig { seed, ..Default::default() };
+        let t = std::time::Instant::now();
+        let r = alignment_experiment(&cfg)?;
+        let seconds = t.elapsed().as_secs_f64() / 2.0;
+        for (method, cos) in [("racecar", &r.racecar), ("plain", &r.plain)] {
+            for (k, label) in [(4, "lead4"), (cfg.rank, "all")] {
+                rows.push(BenchRow {
+                    case: format!("racecar_alignment_seed{seed}"),
+                    method: method.into(),
+                    size: format!("{label}_of_rank{}", cfg.rank),
+                    seconds,
+                    unit: "training".into(),
+                    error: Some(cos[..k].iter().copied().fold(f64::INFINITY, f64::min)),
+                    error_kind: "min_abs_cos_with_data_span".into(),
+                    peer: false,
+                    threads: ctx.threads,
+                });
+            }
+        }
+    }
     Ok(rows)
 }

@@ -9,6 +9,7 @@
 //! | [`physics`] | the [`physics::Physics`] trait (forward + exact Jacobian) and the experiments' physics: linear chain, nonlinear oscillators (RK4), Poisson 8x8 |
 //! | [`bptt`] | stabilized BPTT: gradient modes F, P, S, C for any candle rollout, with value / global-norm clipping |
 //! | [`cartpole`] | cart-pole with 1..N poles, differentiable in candle, and the stabilized-BPTT training run on it |
+//! | [`racecar`] | the racecar reverse-pass reconstruction loss (transposed shared weights) for dense nets, and the SVD alignment analysis |
 //! | [`error`] | the crate's [`Error`] |
 //! | [`tasks`] | tour and bench entries for `cargo xtask` (HIG vs Adam vs Gauss-Newton, loss vs wall-clock) |
 //!
@@ -39,6 +40,7 @@ pub mod error;
 pub mod hig;
 pub mod mlp;
 pub mod physics;
+pub mod racecar;
 
 pub use entries::tasks;
 pub use error::{Error, Result};

@@ -13,7 +13,7 @@
 //! | [`iisph`] | [`Iisph`]: 2D implicit incompressible SPH (relaxed-Jacobi pressure solve to a stated density tolerance, wall particles), [`DamBreak::build_iisph`] |
 //! | [`render`] | particles splatted into pixel fields for PNG/GIF ([`render::scatter`]) |
 //! | [`scene`] | [`scene::Scene`]: TOML scenes (shock tube, dam break WCSPH/IISPH, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
-//! | [`mod@tasks`] | [`tasks()`]: tour (Sod, dam break), bench (neighbour search, Sod time vs error, WCSPH step), stress (dam break to T = 10, strong shocks) |
+//! | [`mod@tasks`] | [`tasks()`]: tour (Sod, dam break WCSPH and IISPH), bench (neighbour search, Sod time vs error, WCSPH step), stress (dam break to T = 10, strong shocks) |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
 //! Conventions: positions are slices of `[T; D]` (`T` = `f32` or `f64`); neighbour lists

@@ -159,3 +159,15 @@ fn trajectory_round_trips_through_npz_as_init() {
     let arrays = pbdl_core::io::read_npz(&files[0]).unwrap();
     assert!(arrays.iter().any(|(k, _)| k == "fixed_positions"));
 }
+
+#[test]
+fn periodic_1d_noise_conserves_momentum_and_mass() {
+    let sc = Scene::from_toml_str("name = \"p\"\nframes = 1\nframe_dt = 0.002\n[periodic_1d]\nn = 512\n", "p").unwrap();
+    let Stepper::Sph1d(mut sim) = sc.build(3, None).unwrap() else { panic!("not 1D") };
+    let (p0, mass0) = (sim.momentum(), sim.total_mass());
+    sim.run_until(0.002).unwrap();
+    let drift = (sim.momentum() - p0).abs() / sim.momentum_scale();
+    eprintln!("periodic 1D noise: {} steps, relative momentum drift {drift:.2e}", sim.steps());
+    assert!(drift <= 1e-13, "drift {drift:.2e}");
+    assert_eq!(sim.total_mass(), mass0);
+}

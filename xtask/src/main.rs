@@ -94,14 +94,17 @@ Output: <out>/<scene>.npz with one array per field, [T, C, Y, X] (x fastest, y u
 `time` [T] and `step` [T]; PNG/GIF renders beside it. Velocity scenes write `velocity`
 [T, 2, Y, X] on cell centres, `velocity_mac` [T, 2, Y, X] as stored (u at x-faces
 ((i+1) dx, (j+1/2) dy), v at y-faces ((i+1/2) dx, (j+1) dy)) and `vorticity` [T, 1, Y, X] at
-the cell corners. Scalar scenes write `u` (burgers_1d, Y = 1), `temperature` (heat), `phi` and
-`source` (poisson), `concentration` (advection_diffusion).
+the cell corners; smoke_plume also writes `density` [T, 1, Y, X]. Scalar scenes write `u`
+(burgers_1d, Y = 1), `temperature` (heat), `phi` and `source` (poisson), `concentration`
+(advection_diffusion).
 
 --init FILE.npz: velocity scenes read `velocity` on cell centres, [2, Y, X] or [1, 2, Y, X] or a
 trajectory [T, 2, Y, X] (its last frame), any Y, X (resampled bilinearly to the grid), then
 averaged to the faces and made divergence-free; or `velocity_mac` with the grid's exact shape.
 Scalar scenes read their scalar by the name above ([Y, X], [1, Y, X] or [T, 1, Y, X]; the
-Poisson scene reads `source`). A trajectory written by `sim` is a valid --init file.
+Poisson scene reads `source`). smoke_plume reads `density` ([Y, X], [1, Y, X] or
+[T, 1, Y, X], resampled like the velocity), the velocity, or both; what is missing is kept.
+A trajectory written by `sim` is a valid --init file.
 
 Particles (`sim particles`): <out>/<scene>_seed<k>.npz with `positions` [T, N, D],
 `velocities` [T, N, D], `density` [T, N], `mass` [T, N], `time` [T] (f64) and, where there are

@@ -14,7 +14,7 @@
 
 use crate::boundary::{Ghosts, MacGhosts};
 use crate::fd::dims4;
-use crate::pad::{for_rows, pad, pad_adjoint, PAR_CELLS};
+use crate::pad::{accumulate_rows, for_rows, pad, pad_adjoint, PAR_CELLS};
 use crate::scratch::zeros;
 use crate::Grid;
 use candle_core::{Shape, Tensor};
@@ -284,13 +284,14 @@ impl SlGradQ {
                     pad(&q[off..off + n], nx, ny, &gh, true, &mut qp);
                 }
                 gp.fill(T::zero());
-                for j in 0..ny {
+                let (up, vp, qp) = (&*up, &*vp, &*qp);
+                accumulate_rows(&mut gp, ny, n >= PAR_CELLS, |j, gp| {
                     for i in 0..nx {
                         let a = g[off + j * nx + i];
                         if sl.is_fixed(ch, j, i) || a == T::zero() {
                             continue;
                         }
-                        let f = sl.foot(&up, &vp, j, i, loc, cfl);
+                        let f = sl.foot(up, vp, j, i, loc, cfl);
                         match self.max {
                             None => {
                                 let (tx, ty) = (T::c(f.tx), T::c(f.ty));
@@ -312,7 +313,7 @@ impl SlGradQ {
                             }
                         }
                     }
-                }
+                });
                 pad_adjoint(&mut gp, nx, ny, &gh, &mut out[off..off + n]);
             }
         }
@@ -361,35 +362,37 @@ impl Kernel3 for SlGradVel {
         let mut up = zeros::<T>(pn);
         let mut vp = zeros::<T>(pn);
         let mut qp = zeros::<T>(pn);
-        let mut gu = zeros::<T>(pn);
-        let mut gv = zeros::<T>(pn);
+        // The u and v ghost-padded gradients side by side: `[gu | gv]`.
+        let mut guv = zeros::<T>(2 * pn);
         for (b, (vb, ob)) in vel.chunks(2 * n).zip(out.chunks_mut(2 * n)).enumerate() {
             pad(&vb[..n], nx, ny, &sl.vel.u, true, &mut up);
             pad(&vb[n..], nx, ny, &sl.vel.v, true, &mut vp);
-            gu.fill(T::zero());
-            gv.fill(T::zero());
+            guv.fill(T::zero());
             for (ch, &(loc, gh)) in sl.layout.chans.iter().enumerate() {
                 let off = (b * nc + ch) * n;
                 pad(&q[off..off + n], nx, ny, &gh, true, &mut qp);
-                for j in 0..ny {
+                let (up, vp, qp) = (&*up, &*vp, &*qp);
+                accumulate_rows(&mut guv, ny, n >= PAR_CELLS, |j, guv| {
+                    let (gu, gv) = guv.split_at_mut(pn);
                     for i in 0..nx {
                         let a = g[off + j * nx + i];
                         if sl.is_fixed(ch, j, i) || a == T::zero() {
                             continue;
                         }
-                        let f = sl.foot(&up, &vp, j, i, loc, cfl);
+                        let f = sl.foot(up, vp, j, i, loc, cfl);
                         let c = f.k.map(|k| qp[k].to_f64());
                         let dqx = (1.0 - f.ty) * (c[1] - c[0]) + f.ty * (c[3] - c[2]);
                         let dqy = (1.0 - f.tx) * (c[2] - c[0]) + f.tx * (c[3] - c[1]);
                         let au = a * T::c(dqx * f.sx * cx);
                         let av = a * T::c(dqy * f.sy * cy);
-                        vel_at_adjoint(&mut gu, &mut gv, w, (j + 1) * w + i + 1, loc, au, av);
+                        vel_at_adjoint(gu, gv, w, (j + 1) * w + i + 1, loc, au, av);
                     }
-                }
+                });
             }
             let (ou, ov) = ob.split_at_mut(n);
-            pad_adjoint(&mut gu, nx, ny, &sl.vel.u, ou);
-            pad_adjoint(&mut gv, nx, ny, &sl.vel.v, ov);
+            let (gu, gv) = guv.split_at_mut(pn);
+            pad_adjoint(gu, nx, ny, &sl.vel.u, ou);
+            pad_adjoint(gv, nx, ny, &sl.vel.v, ov);
         }
         Ok(())
     }

@@ -3,7 +3,7 @@
 use super::{SceneResult, Simulation, Trajectory};
 use crate::Error;
 use candle_core::{DType, Device, Tensor};
-use pbdl_core::viz::{self, FieldStyle, GifStyle, PlotStyle, Series};
+use pbdl_core::viz::{self, ColorRange, FieldStyle, GifStyle, PlotStyle, Series};
 use std::path::{Path, PathBuf};
 
 fn core<T>(r: pbdl_core::Result<T>) -> SceneResult<T> {
@@ -16,7 +16,8 @@ fn cdl<T>(r: candle_core::Result<T>) -> SceneResult<T> {
 
 /// Writes `<dir>/<scene>.npz` with every field as `[T, C, ny, nx]` (plus `time` `[T]` and
 /// `step` `[T]`, f64) and renders: for 2D scenes the last frame of each scalar as a PNG and its
-/// trajectory as a GIF, for velocity scenes the speed `|u|` (PNG) and the vorticity (PNG + GIF);
+/// trajectory as a GIF, for velocity scenes the speed `|u|` (PNG) and the vorticity (PNG + GIF, colours clipped
+/// symmetrically at the 99.5th percentile of `|w|` of the last frame);
 /// for 1D scenes a line plot of the frames and a space-time image (x across, time up).
 /// Returns the files written.
 pub fn write_trajectory(sim: &Simulation, traj: &Trajectory, dir: &Path) -> SceneResult<Vec<PathBuf>> {
@@ -75,7 +76,18 @@ pub fn write_trajectory(sim: &Simulation, traj: &Trajectory, dir: &Path) -> Scen
             continue;
         }
         let diverging = field == "vorticity";
-        let style = if diverging { FieldStyle::diverging() } else { FieldStyle::default() };
+        let style = if diverging {
+            // Symmetric about 0, clipped at the 99.5th percentile of |w| of the last frame: the
+            // thin wall layers (cylinder, lid corners) would otherwise wash out the wake.
+            let mut a: Vec<f32> = cdl(last.abs().and_then(|x| x.flatten_all()).and_then(|x| x.to_vec1::<f32>()))?;
+            a.retain(|v| v.is_finite());
+            a.sort_by(f32::total_cmp);
+            let clip = a.get(((a.len() as f64 - 1.0) * 0.995) as usize).copied().unwrap_or(0.0) as f64;
+            let range = if clip > 0.0 { ColorRange::Symmetric(clip) } else { ColorRange::Auto };
+            FieldStyle { range, ..FieldStyle::diverging() }
+        } else {
+            FieldStyle::default()
+        };
         let png = dir.join(format!("{name}_{field}.png"));
         core(viz::tensor_field_to_png(&png, &last, &style))?;
         files.push(png);
