@@ -11,6 +11,11 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use pbdl_grid::{Boundaries, Grid, MacField, NavierStokes, NavierStokesConfig, Scheme};
 use std::f64::consts::PI;
 
+/// Same allocator as `cargo xtask` (see docs/candle-traps.md): candle's per-op output buffers
+/// would otherwise go through glibc's mmap path at 128^2+.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 fn tgv(c: &mut Criterion) {
     let mut g = c.benchmark_group("ns_step_tgv_f32");
     g.sample_size(30);

@@ -16,6 +16,7 @@
 //! | [`NormScope`] | per-pair (default) or official whole-call input normalisation, for both learned metrics |
 //! | [`weights`] | reading the converted safetensors weight files with typed errors; where the default weights live |
 //! | [`mod@pool`] | a max-pool with overlapping windows and a backward (candle's has none for kernel != stride) |
+//! | [`files`] | [`files::read_field`] (`.npy`/`.npz`/`.png`) and [`files::compare`]: any metric on two arrays from files, the library side of `cargo xtask metric` |
 //! | [`error`] | [`Error`], [`Result`] |
 //! | [`mod@tasks`] | [`tasks()`]: tour and bench entries for `cargo xtask` |
 //!
@@ -41,6 +42,7 @@
 mod check;
 pub mod classic;
 pub mod error;
+pub mod files;
 mod learned;
 pub mod lsim;
 pub mod pool;

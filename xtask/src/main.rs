@@ -8,10 +8,13 @@
 //! * `stress [crate]`: long and extreme runs; reports the first step at which an invariant breaks.
 //! * `sim grid|particles <scene | file.toml>`: runs a scene, writes its trajectory (`.npz`) and
 //!   renders.
+//! * `metric <lsim|volsim|mse|ssim|...> A B`: a distance between two `.npy`/`.npz`/`.png`
+//!   fields as one JSON object (see `pbdl_metrics::files`).
 //! * `ci`: format check, clippy with `-D warnings`, the test suite.
 
 mod bench;
 mod ci;
+mod metric;
 mod registry;
 mod report;
 mod sim;
@@ -20,6 +23,12 @@ mod tour;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
+
+/// candle allocates every op output afresh; with glibc, blocks >= 128 KiB go through mmap and
+/// each step pays page faults (grid steps at 128^2+). mimalloc reuses them: see
+/// docs/candle-traps.md. Binaries and benches only; libraries never set a global allocator.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 #[derive(Parser)]
 #[command(name = "cargo xtask", about = "pbdl's task runner: tour, bench, stress, ci")]
@@ -83,11 +92,42 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// A distance between two fields in files (.npy, single-array .npz, .png); prints one JSON
+    /// object `{"distance": d}` (a list for batches of LSiM/VolSiM pairs).
+    #[command(after_help = METRIC_HELP)]
+    Metric {
+        /// lsim, volsim, mse, mae, rmse, rel_l2, psnr, ssim, pearson, spearman or spectral.
+        metric: String,
+        /// First field (the reference for rel_l2 and psnr).
+        a: PathBuf,
+        /// Second field, of the same shape.
+        b: PathBuf,
+        /// Weight file of lsim/volsim (default: ../shared/weights/ or $PBDL_WEIGHTS_DIR).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+        /// LSiM at the input's own size instead of the nearest resize to 224.
+        #[arg(long)]
+        native: bool,
+        /// Normalise a batch jointly (official code) instead of per pair.
+        #[arg(long)]
+        joint_batch: bool,
+    },
     /// fmt check, clippy -D warnings, tests.
     Ci,
     /// List the registered tour, bench and stress entries.
     List,
 }
+
+const METRIC_HELP: &str = "\
+Layouts: lsim [H, W], [H, W, C] or a batch [B, H, W, C] (C = 1 or 3; u8/f32/f64); volsim
+[D, H, W], [D, H, W, C] or [B, D, H, W, C]; the classic metrics read the whole array as one field
+of 1 to 3 dimensions (ssim: 2 or 3). PNG: 8-bit gray is [H, W] u8, colour [H, W, 3] u8.
+
+Examples:
+  cargo xtask metric lsim ref.npy a.npy
+  cargo xtask metric lsim ref.png a.png --native
+  cargo xtask metric volsim a.npy b.npy --weights VolSiM_MS_3scales.safetensors
+  cargo xtask metric ssim a.npz b.npz";
 
 const SIM_HELP: &str = "\
 Output: <out>/<scene>.npz with one array per field, [T, C, Y, X] (x fastest, y up), plus
@@ -127,6 +167,9 @@ fn main() -> anyhow::Result<()> {
         Command::Stress { krate, quick } => stress::run(krate.as_deref(), quick),
         Command::Sim { krate, scene, res, steps, seeds, init, out } => {
             sim::run(sim::SimArgs { krate, scene, res, steps, init, out, seeds })
+        }
+        Command::Metric { metric, a, b, weights, native, joint_batch } => {
+            metric::run(metric::MetricArgs { metric, a, b, weights, native, joint_batch })
         }
         Command::Ci => ci::run(),
         Command::List => {
