@@ -221,7 +221,7 @@ fn tour_sampling(ctx: &TaskContext) -> TaskResult<TourOutcome> {
         }
     }
     let disp = Tensor::from_vec(disp, (1, 2, n, n), &Device::Cpu)?;
-    let init: Vec<f32> = (0..n * n).map(|i| blob((i % n) as f64 + 0.5 - 0.5, (i / n) as f64) as f32).collect();
+    let init: Vec<f32> = (0..n * n).map(|i| blob((i % n) as f64, (i / n) as f64) as f32).collect();
     let mut q = Tensor::from_vec(init, (1, 1, n, n), &Device::Cpu)?;
     let mut frames = vec![q.flatten_all()?.to_vec1::<f32>()?];
     let t = Instant::now();
@@ -415,6 +415,7 @@ fn direct_conv2d(
     circular: bool,
 ) -> (Vec<f64>, [usize; 4]) {
     let [b, cin, h, wd] = xs;
+    debug_assert_eq!(cin, ws[1] * groups);
     let [cout, cing, kh, kw] = ws;
     let oh = (h + 2 * pad - dil * (kh - 1) - 1) / stride + 1;
     let ow = (wd + 2 * pad - dil * (kw - 1) - 1) / stride + 1;
@@ -449,7 +450,6 @@ fn direct_conv2d(
             }
         }
     }
-    let _ = cin;
     (y, [b, cout, oh, ow])
 }
 
