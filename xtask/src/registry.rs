@@ -4,7 +4,14 @@ use pbdl_core::registry::CrateTasks;
 
 /// Every crate's contribution, in tour order.
 pub fn all() -> Vec<CrateTasks> {
-    vec![pbdl_core::tasks(), pbdl_grid::tasks(), pbdl_metrics::tasks(), pbdl_optim::tasks(), pbdl_particles::tasks()]
+    vec![
+        pbdl_core::tasks(),
+        pbdl_grid::tasks(),
+        pbdl_metrics::tasks(),
+        pbdl_optim::tasks(),
+        pbdl_particles::tasks(),
+        pbdl_diffusion::tasks(),
+    ]
 }
 
 /// The crates selected by an optional name; an unknown name lists the known ones.

@@ -1,0 +1,1 @@
+//! Autoregressive conditional diffusion (ACDM) for flow prediction.

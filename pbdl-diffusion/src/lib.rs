@@ -1,0 +1,27 @@
+//! # pbdl-diffusion
+//!
+//! Diffusion models for physics: the DDPM/DDIM core, ACDM (autoregressive conditional diffusion)
+//! for flow prediction, SMDP (score matching through differentiable physics) and a diffusion
+//! surrogate that predicts mean and spread of an unsteady flow.
+//!
+//! | module | what it gives you |
+//! |---|---|
+//! | [`schedule`] | noise schedules: linear, cosine, ACDM's linear schedule scaled to R steps |
+//! | [`ddpm`] | the epsilon-prediction objective (MSE / Huber), ancestral DDPM and DDIM samplers, channel-concatenation conditioning |
+//! | [`unet`] | the ACDM U-Net (ConvNeXt blocks, linear attention, sinusoidal time embedding) and the airfoil-paper U-Net |
+//! | [`smdp`] | score matching through physics: SDE with physics drift, 1-step and multi-step losses, reverse-SDE and probability-flow samplers, toy and heat problems |
+//! | [`acdm`] | autoregressive conditional diffusion on our own cylinder-flow data, baselines, rollouts and rollout metrics |
+//! | [`error`] | [`Error`], [`Result`] |
+//! | [`mod@tasks`] | [`tasks()`]: `cargo xtask` tour, bench and stress entries |
+#![warn(missing_docs)]
+
+pub mod acdm;
+pub mod ddpm;
+pub mod error;
+pub mod schedule;
+pub mod smdp;
+pub mod tasks;
+pub mod unet;
+
+pub use error::{Error, Result};
+pub use tasks::tasks;

@@ -1,0 +1,1 @@
+//! Noise schedules. TODO(core helper).

@@ -1,0 +1,1 @@
+//! Score matching through differentiable physics (SMDP).
