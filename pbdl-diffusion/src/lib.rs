@@ -10,6 +10,7 @@
 //! | [`ddpm`] | the epsilon-prediction objective (MSE / Huber), ancestral DDPM and DDIM samplers, channel-concatenation conditioning |
 //! | [`unet`] | the ACDM U-Net (ConvNeXt blocks, linear attention, sinusoidal time embedding) and the airfoil-paper U-Net |
 //! | [`smdp`] | score matching through physics: SDE with physics drift, 1-step and multi-step losses, reverse-SDE and probability-flow samplers, toy and heat problems |
+//! | [`uncertainty`] | a diffusion surrogate that predicts mean and standard-deviation fields of an unsteady wake from samples |
 //! | [`acdm`] | autoregressive conditional diffusion on our own cylinder-flow data, baselines, rollouts and rollout metrics |
 //! | [`error`] | [`Error`], [`Result`] |
 //! | [`mod@tasks`] | [`tasks()`]: `cargo xtask` tour, bench and stress entries |
@@ -21,6 +22,7 @@ pub mod error;
 pub mod schedule;
 pub mod smdp;
 pub mod tasks;
+pub mod uncertainty;
 pub mod unet;
 
 pub use error::{Error, Result};

@@ -1,1 +1,2 @@
 //! Autoregressive conditional diffusion (ACDM) for flow prediction.
+pub(crate) mod entries;

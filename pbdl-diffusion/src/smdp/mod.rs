@@ -1,1 +1,2 @@
 //! Score matching through differentiable physics (SMDP).
+pub(crate) mod entries;

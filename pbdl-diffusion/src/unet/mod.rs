@@ -1,1 +1,2 @@
 //! The U-Nets of the diffusion papers.
+pub(crate) mod entries;

@@ -14,3 +14,4 @@ pub trait NoisePredictor {
     /// Predicts the noise.
     fn predict(&self, x: &Tensor, t: &Tensor) -> Result<Tensor>;
 }
+pub(crate) mod entries;
