@@ -83,6 +83,26 @@ pub enum Error {
         /// What is wrong, naming the tensor or metadata key.
         reason: String,
     },
+    /// A pickle stream (a PyTorch checkpoint) that is malformed or ends early.
+    #[error("pickle at byte {offset}: {reason}")]
+    Pickle {
+        /// Byte offset of the opcode (or field) that failed, from the start of the file.
+        offset: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A pickle opcode the reader does not implement (it reads what legacy PyTorch checkpoints use).
+    #[error(
+        "pickle at byte {offset}: unsupported opcode 0x{opcode:02x} ({name}); this reader handles the opcodes of legacy (pre-1.6) PyTorch checkpoints, protocol 2"
+    )]
+    UnsupportedOpcode {
+        /// The opcode byte.
+        opcode: u8,
+        /// Its name in Python's `pickletools`, or `unknown`.
+        name: &'static str,
+        /// Byte offset of the opcode from the start of the file.
+        offset: usize,
+    },
     /// A file could not be read.
     #[error("{path}: {source}")]
     Io {

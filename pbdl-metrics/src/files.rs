@@ -106,6 +106,8 @@ pub struct CompareOptions {
     pub native: bool,
     /// The official whole-batch normalisation instead of per pair (differs only for batches).
     pub joint_batch: bool,
+    /// VolSiM: cubic-spline resize of both volumes to 64^3 first (the official option).
+    pub resize64: bool,
 }
 
 /// Reads one array from `path` by its extension: `.npy`, `.npz` (exactly one array) or `.png`.
@@ -225,6 +227,13 @@ pub fn compare(metric: Metric, a: &Tensor, b: &Tensor, opts: &CompareOptions) ->
     let norm = if opts.joint_batch { NormScope::JointBatch } else { NormScope::PerPair };
     match metric {
         Metric::Lsim => {
+            if opts.resize64 {
+                return Err(Error::invalid(
+                    "lsim",
+                    "resize64",
+                    "--resize64 is for volsim; LSiM resizes to 224 unless --native",
+                ));
+            }
             let (a, b) = (learned_layout("lsim", "a", a, 2)?, learned_layout("lsim", "b", b, 2)?);
             let model = Lsim::load(weights_path(&opts.weights, LSIM_FILE, "LSiM")?)?;
             let size = if opts.native { LsimSize::Native } else { LsimSize::Resize224 };
@@ -240,16 +249,17 @@ pub fn compare(metric: Metric, a: &Tensor, b: &Tensor, opts: &CompareOptions) ->
                 ));
             }
             let (a, b) = (learned_layout("volsim", "a", a, 3)?, learned_layout("volsim", "b", b, 3)?);
-            let model = Volsim::load(weights_path(&opts.weights, VOLSIM_FILE, "VolSiM")?)?;
+            let model = Volsim::load(weights_path(&opts.weights, VOLSIM_FILE, "VolSiM")?)?
+                .with_resize(opts.resize64.then_some(crate::volsim::VOLSIM_RESIZE))?;
             let d = model.distance_with(&a, &b, &VolsimOptions { norm })?;
             Ok(d.to_dtype(DType::F64)?.to_vec1()?)
         }
         _ => {
-            if opts.native || opts.joint_batch || opts.weights.is_some() {
+            if opts.native || opts.joint_batch || opts.resize64 || opts.weights.is_some() {
                 return Err(Error::invalid(
                     metric.name(),
                     "options",
-                    "--native, --joint-batch and --weights are for lsim/volsim",
+                    "--native, --joint-batch, --resize64 and --weights are for lsim/volsim",
                 ));
             }
             let op = metric.name();

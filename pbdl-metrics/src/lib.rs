@@ -12,12 +12,14 @@
 //! | [`classic::spectrum`] | radially averaged energy spectrum (FFT, Parseval-normalised) and a log-spectral error |
 //! | [`classic::temporal`] | temporal stability of a rollout, `mean |s_t - s_(t-1)| / dt` |
 //! | [`lsim`] | [`Lsim`]: the published LSiM metric from `LSiM.safetensors`, default (224, nearest) and native-size paths, per-pair or official whole-batch normalisation, differentiable |
-//! | [`volsim`] | [`Volsim`]: VolSiM (3D) from `VolSiM_MS_3scales.safetensors`, any number of scales, native size, differentiable; 1-channel and constant volumes work |
+//! | [`volsim`] | [`Volsim`]: VolSiM (3D) from `VolSiM_MS_3scales.safetensors`, any number of scales, native size or the official cubic-spline resize to 64^3 ([`Volsim::with_resize`]), differentiable; 1-channel and constant volumes work |
 //! | [`NormScope`] | per-pair (default) or official whole-call input normalisation, for both learned metrics |
+//! | [`convert`] | the official legacy `.pth` checkpoints (our own pickle reader) to the safetensors layout of [`weights`]; `cargo xtask weights convert` |
 //! | [`weights`] | reading the converted safetensors weight files with typed errors; where the default weights live |
 //! | [`mod@pool`] | a max-pool with overlapping windows and a backward (candle's has none for kernel != stride) |
 //! | [`files`] | [`files::read_field`] (`.npy`/`.npz`/`.png`) and [`files::compare`]: any metric on two arrays from files, the library side of `cargo xtask metric` |
 //! | [`error`] | [`Error`], [`Result`] |
+//! | [`train`] | training a metric from scratch: solver-generated sequences, LSiM/VolSiM losses and "fit2" ground truth, calibration, Spearman evaluation |
 //! | [`mod@tasks`] | [`tasks()`]: tour and bench entries for `cargo xtask` |
 //!
 //! Conventions: fields are candle tensors `[batch, channel, (z,) (y,) x]`, x fastest, `f32` or
@@ -41,12 +43,14 @@
 
 mod check;
 pub mod classic;
+pub mod convert;
 pub mod error;
 pub mod files;
 mod learned;
 pub mod lsim;
 pub mod pool;
 pub mod tasks;
+pub mod train;
 pub mod volsim;
 pub mod weights;
 

@@ -2,9 +2,11 @@
 //!
 //! * tour `lsim`: LSiM on the published plume example (`../shared/data/lsim-example`), the two
 //!   distances against the published 0.3791 / 0.4433 and the time per call.
-//! * bench `lsim`: LSiM time per pair (224 path from 128x128 and 256x256, native 128x128, a batch
-//!   of 16) with the error against the published values where the example data is present;
-//!   VolSiM (3-scale weights) per 64^3 pair.
+//! * bench `lsim`: LSiM time per pair (224 path from 128x128 and 256x256, native 128x128, batches
+//!   of 16 on both paths) with the error against the published values where the example data is
+//!   present; VolSiM (3-scale weights) per 64^3 pair, at native size and from 48^3 with the
+//!   cubic-spline resize to 64^3; and the official PyTorch times quoted in the project's issue as
+//!   `peer` rows (measured elsewhere on 2 contended threads, not by this entry).
 //! * bench `classic`: MSE, SSIM, Pearson, Spearman and the energy spectrum on 16 fields of 128x128.
 
 use crate::classic::{energy_spectrum, mse, pearson, spearman, ssim2d, SsimConfig};
@@ -32,7 +34,7 @@ pub fn tasks() -> CrateTasks {
         bench: vec![
             Entry {
                 name: "lsim",
-                about: "LSiM time per pair (224 and native, batch of 16) and error vs published; VolSiM per 64^3 pair.",
+                about: "LSiM time per pair (224 and native, batches of 16) and error vs published; VolSiM per 64^3 pair (native, resized from 48^3); official PyTorch reference times.",
                 run: bench_lsim,
             },
             Entry {
@@ -138,6 +140,8 @@ fn bench_lsim(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     let (a, b) = pair(128, 16, 20)?;
     let secs = median_seconds(1, reps.min(3), || lsim.distance(&a, &b).ok()) / 16.0;
     rows.push(row("lsim_224_batch16", "16x128x128->224", secs, None, ctx.threads));
+    let secs = median_seconds(1, reps.min(3), || lsim.distance_with(&a, &b, &native).ok()) / 16.0;
+    rows.push(row("lsim_native_batch16", "16x128x128", secs, None, ctx.threads));
     // VolSiM (3-scale weights), one pair at 64^3, if its weights are there too.
     if let Some(v) = weights_dir().map(|d| d.join(VOLSIM_FILE)).filter(|p| p.exists()) {
         let v = Volsim::load(v)?;
@@ -145,6 +149,24 @@ fn bench_lsim(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         let b = seed::rand_uniform((1, 1, 64, 64, 64), 0.0, 1.0, DType::F32, &dev, 31)?;
         let secs = median_seconds(1, reps.min(3), || v.distance(&a, &b).ok());
         rows.push(row("volsim_3scales", "64x64x64", secs, None, ctx.threads));
+        let r = v.with_resize(Some(crate::volsim::VOLSIM_RESIZE))?;
+        let a = seed::rand_uniform((1, 1, 48, 48, 48), 0.0, 1.0, DType::F32, &dev, 32)?;
+        let b = seed::rand_uniform((1, 1, 48, 48, 48), 0.0, 1.0, DType::F32, &dev, 33)?;
+        let secs = median_seconds(1, reps.min(3), || r.distance(&a, &b).ok());
+        rows.push(row("volsim_3scales_resize64", "48^3->64^3", secs, None, ctx.threads));
+    }
+    // The official code's times from the issue (PyTorch, 2 contended threads), for the ratios.
+    for (case, size, seconds) in [
+        ("lsim_224", "128x128->224", 0.17),
+        ("lsim_224_batch16", "16x128x128->224", 1.7 / 16.0),
+        ("volsim_3scales", "64x64x64", 1.4),
+    ] {
+        rows.push(BenchRow {
+            method: "official_pytorch_issue_reference".into(),
+            peer: true,
+            threads: 2,
+            ..row(case, size, seconds, None, 2)
+        });
     }
     Ok(rows)
 }

@@ -14,9 +14,12 @@
 //! **Preprocessing**: one min/max over all values of both volumes (all channels) maps the data to
 //! [-1, 1] (a constant input is only shifted by -min, to 0); one channel is repeated to three.
 //! [`NormScope::PerPair`] (default) takes the min/max per pair, [`NormScope::JointBatch`] over the
-//! whole call, as the official `computeDistance`. Volumes run at their native size; every side
-//! must be a multiple of `2^(S-1)` (so pooled inputs and skipped features line up) and at least
-//! that. The official code's optional cubic-spline resize to 64^3 is not implemented here.
+//! whole call, as the official `computeDistance`. Volumes run at their native size by default;
+//! every side must then be a multiple of `2^(S-1)` (so pooled inputs and skipped features line
+//! up) and at least that. [`Volsim::with_resize`]`(Some(64))` is the official `interpolate=True`
+//! option: after the normalisation and the channel repeat, every volume is resized to 64^3 with
+//! cubic B-spline interpolation as `scipy.ndimage.zoom(order=3)`
+//! ([`pbdl_core::sample::spline_zoom`]; like the official code it may overshoot [-1, 1]).
 //!
 //! Unlike the official code, 1-channel and constant volumes work (the official preprocessing
 //! loops over three channels of a one-channel array and raises an IndexError on constant data).
@@ -27,6 +30,7 @@ use crate::weights::{weights_dir, WeightFile, VOLSIM_FILE, WEIGHTS_DIR_ENV};
 use crate::{check, Error, Result};
 use candle_core::{DType, Tensor};
 use pbdl_core::conv::{conv3d, Conv3dParams};
+use pbdl_core::sample::spline_zoom;
 use std::path::Path;
 
 /// Options of [`Volsim::distance_with`].
@@ -55,7 +59,13 @@ pub struct Volsim {
     mean: Vec<Tensor>,
     m2: Vec<Tensor>,
     count: Vec<f64>,
+    /// Cubic-spline resize of every side to this size before the network (`None`: native size).
+    resize: Option<usize>,
 }
+
+/// The side length the official VolSiM resizes to with `interpolate=True` (its
+/// `dataScaleInference`).
+pub const VOLSIM_RESIZE: usize = 64;
 
 impl Volsim {
     /// Loads a converted VolSiM weight file (any number of scales).
@@ -135,7 +145,7 @@ impl Volsim {
             prev_out = c_out;
         }
         let count = w.norm_counts(n)?;
-        Ok(Self { layers, skip, lin, mean, m2, count })
+        Ok(Self { layers, skip, lin, mean, m2, count, resize: None })
     }
 
     /// The same model in another float dtype (`f64` for gradient checks).
@@ -155,7 +165,29 @@ impl Volsim {
             mean: cv(&self.mean)?,
             m2: cv(&self.m2)?,
             count: self.count.clone(),
+            resize: self.resize,
         })
+    }
+
+    /// The same model, resizing every input volume to `size`^3 (cubic B-spline, as the official
+    /// `interpolate=True` with [`VOLSIM_RESIZE`] = 64) after normalisation, or at native size
+    /// with `None` (the default). Errors: a size of 0 or not a multiple of `2^(scales - 1)`.
+    pub fn with_resize(mut self, size: Option<usize>) -> Result<Self> {
+        let m = 1usize << (self.scales() - 1);
+        if let Some(s) = size.filter(|&s| s == 0 || s % m != 0) {
+            return Err(Error::invalid(
+                "Volsim::with_resize",
+                "size",
+                format!("{s} is not a positive multiple of {m} (2^(scales - 1)); use 64 as the official code"),
+            ));
+        }
+        self.resize = size;
+        Ok(self)
+    }
+
+    /// The resize set with [`Volsim::with_resize`].
+    pub fn resize(&self) -> Option<usize> {
+        self.resize
     }
 
     /// The dtype the network runs in (`f32` after loading).
@@ -222,12 +254,13 @@ impl Volsim {
             return Err(Error::ShapeMismatch { op: OP, a: a.dims().to_vec(), b: b.dims().to_vec() });
         }
         let m = 1usize << (self.scales() - 1);
-        if a.dims()[2..].iter().any(|&s| s % m != 0) {
+        if self.resize.is_none() && a.dims()[2..].iter().any(|&s| s % m != 0) {
             return Err(Error::Shape {
                 op: OP,
                 arg: "a",
                 expected: format!(
-                    "spatial sizes that are multiples of {m} (2^(scales - 1) for {} scales)",
+                    "spatial sizes that are multiples of {m} (2^(scales - 1) for {} scales), or resize with \
+                     `Volsim::with_resize(Some(64))`",
                     self.scales()
                 ),
                 got: a.dims().to_vec(),
@@ -261,6 +294,10 @@ impl Volsim {
         let (den, scale, shift) = (den.reshape(lo.shape())?, scale.reshape(lo.shape())?, shift.reshape(lo.shape())?);
         let map = |t: &Tensor| -> Result<Tensor> {
             let mut t = t.broadcast_sub(&lo)?.broadcast_div(&den)?.broadcast_mul(&scale)?.broadcast_sub(&shift)?;
+            // Resized before the channel repeat: the same result, a third of the work.
+            if let Some(s) = self.resize {
+                t = spline_zoom(&t, &[s, s, s])?;
+            }
             if t.dim(1)? == 1 {
                 t = t.repeat((1, 3, 1, 1, 1))?;
             }

@@ -8,6 +8,11 @@
 //! `hyperparams` (JSON). The files are MIT licensed by TUM (keep `LICENSE-LSIM.txt` /
 //! `LICENSE-VOLSIM.txt` with them) and are not part of this repository.
 //!
+//! **Getting them**: download the official checkpoints (tum-pbs/LSIM `Models/LSiM.pth`,
+//! tum-pbs/VOLSIM `models/MS_3scales.pth`) and convert them with
+//! `cargo xtask weights convert IN.pth OUT.safetensors` ([`crate::convert`]); the result is
+//! bit-identical in every tensor, with equal metadata, to the reference conversion.
+//!
 //! **Where the weights are looked up** ([`weights_dir`]): the directory in the environment
 //! variable `PBDL_WEIGHTS_DIR` if set, otherwise `../shared/weights` relative to the current
 //! directory (the project's layout: the shared folder beside the checkout).

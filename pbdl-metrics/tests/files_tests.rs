@@ -77,6 +77,11 @@ fn compares_classic_metrics_and_rejects_bad_shapes() {
     assert!(matches!(e, Error::Shape { .. }), "{e}");
     let native = CompareOptions { native: true, ..Default::default() };
     assert!(matches!(compare(Metric::Mse, &a, &b, &native), Err(Error::Invalid { .. })));
+    let resize = CompareOptions { resize64: true, ..Default::default() };
+    assert!(matches!(compare(Metric::Mse, &a, &b, &resize), Err(Error::Invalid { .. })));
+    // --resize64 is VolSiM's option; LSiM refuses it before loading any weights.
+    let e = compare(Metric::Lsim, &ramp(&[8, 8]), &ramp(&[8, 8]), &resize).unwrap_err();
+    assert!(matches!(e, Error::Invalid { .. }) && e.to_string().contains("volsim"), "{e}");
     let e = "foo".parse::<Metric>().unwrap_err();
     assert!(e.to_string().contains("unknown metric `foo`") && e.to_string().contains("lsim"), "{e}");
 }

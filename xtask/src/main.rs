@@ -10,6 +10,8 @@
 //!   renders.
 //! * `metric <lsim|volsim|mse|ssim|...> A B`: a distance between two `.npy`/`.npz`/`.png`
 //!   fields as one JSON object (see `pbdl_metrics::files`).
+//! * `weights convert IN.pth OUT.safetensors`: the official LSiM / VolSiM checkpoints (legacy
+//!   PyTorch pickles) to the safetensors files `pbdl_metrics` loads.
 //! * `ci`: format check, clippy with `-D warnings`, the test suite.
 
 mod bench;
@@ -20,6 +22,7 @@ mod report;
 mod sim;
 mod stress;
 mod tour;
+mod weights;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -111,12 +114,42 @@ enum Command {
         /// Normalise a batch jointly (official code) instead of per pair.
         #[arg(long)]
         joint_batch: bool,
+        /// VolSiM: cubic-spline resize of both volumes to 64^3 first (the official option).
+        #[arg(long)]
+        resize64: bool,
     },
+    /// Weight files of the learned metrics.
+    #[command(subcommand)]
+    Weights(WeightsCommand),
     /// fmt check, clippy -D warnings, tests.
     Ci,
     /// List the registered tour, bench and stress entries.
     List,
 }
+
+#[derive(Subcommand)]
+enum WeightsCommand {
+    /// Convert an official LSiM / VolSiM checkpoint (legacy, pre-1.6 PyTorch `.pth`) to the
+    /// safetensors layout of `pbdl_metrics::weights` (tensors `model.<key>`, `norm.mean.<i>`,
+    /// `norm.m2.<i>`; metadata `normCount`, `hyperparams`).
+    #[command(after_help = WEIGHTS_HELP)]
+    Convert {
+        /// The `.pth` file (tum-pbs/LSIM `Models/LSiM.pth` or tum-pbs/VOLSIM `models/MS_3scales.pth`).
+        input: PathBuf,
+        /// The safetensors file to write (e.g. `LSiM.safetensors`, `VolSiM_MS_3scales.safetensors`).
+        output: PathBuf,
+    },
+}
+
+const WEIGHTS_HELP: &str = "\
+Get the official files (MIT licence, TUM; keep the licence with them):
+  https://github.com/tum-pbs/LSIM/raw/master/Models/LSiM.pth
+  https://github.com/tum-pbs/VOLSIM/raw/main/models/MS_3scales.pth
+
+Example:
+  cargo xtask weights convert LSiM.pth weights/LSiM.safetensors
+  cargo xtask weights convert MS_3scales.pth weights/VolSiM_MS_3scales.safetensors
+then set PBDL_WEIGHTS_DIR=weights (or put them in ../shared/weights).";
 
 const METRIC_HELP: &str = "\
 Layouts: lsim [H, W], [H, W, C] or a batch [B, H, W, C] (C = 1 or 3; u8/f32/f64); volsim
@@ -127,6 +160,7 @@ Examples:
   cargo xtask metric lsim ref.npy a.npy
   cargo xtask metric lsim ref.png a.png --native
   cargo xtask metric volsim a.npy b.npy --weights VolSiM_MS_3scales.safetensors
+  cargo xtask metric volsim a.npy b.npy --resize64
   cargo xtask metric ssim a.npz b.npz";
 
 const SIM_HELP: &str = "\
@@ -168,9 +202,10 @@ fn main() -> anyhow::Result<()> {
         Command::Sim { krate, scene, res, steps, seeds, init, out } => {
             sim::run(sim::SimArgs { krate, scene, res, steps, init, out, seeds })
         }
-        Command::Metric { metric, a, b, weights, native, joint_batch } => {
-            metric::run(metric::MetricArgs { metric, a, b, weights, native, joint_batch })
+        Command::Metric { metric, a, b, weights, native, joint_batch, resize64 } => {
+            metric::run(metric::MetricArgs { metric, a, b, weights, native, joint_batch, resize64 })
         }
+        Command::Weights(WeightsCommand::Convert { input, output }) => weights::convert(&input, &output),
         Command::Ci => ci::run(),
         Command::List => {
             registry::print_list();

@@ -41,9 +41,11 @@ mod im2col;
 mod layer;
 mod matmul;
 mod params;
+mod transpose;
 
 pub use layer::{Conv, Conv1d, Conv2d, Conv3d, ConvLayerConfig};
 pub use params::{Conv1dParams, Conv2dParams, Conv3dParams, ConvParams, PaddingMode};
+pub use transpose::{conv_transpose, conv_transpose2d};
 
 use crate::error::check_float;
 use crate::{Error, Result};

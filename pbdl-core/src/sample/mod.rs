@@ -7,6 +7,7 @@
 //! | [`warp`] | the field sampled at its own grid points plus a displacement (advection, image warping) |
 //! | [`index_grid`] | the coordinates of every grid point, to build points for [`grid_sample`] |
 //! | [`resize2d`], [`resize3d`] | nearest (scipy), bilinear/trilinear and bicubic (PyTorch) resizing |
+//! | [`spline_zoom`] | cubic B-spline resizing of any trailing axes as `scipy.ndimage.zoom(order=3)` (VolSiM's resize to 64^3), differentiable |
 //!
 //! **Conventions.** Fields are `[batch, channel, y, x]` or `[batch, channel, z, y, x]` with x
 //! fastest. Points are `[batch, ..., D]` with coordinates `(x, y)` or `(x, y, z)`, x first, in
@@ -45,9 +46,11 @@
 mod boundary;
 mod grid_sample;
 mod resize;
+mod spline;
 mod warp;
 
 pub use boundary::{Boundaries, Boundary};
 pub use grid_sample::grid_sample;
 pub use resize::{resize2d, resize3d, Resize};
+pub use spline::{spline_prefilter, spline_zoom, spline_zoom_matrix};
 pub use warp::{index_grid, warp};

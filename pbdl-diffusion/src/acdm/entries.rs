@@ -1,12 +1,220 @@
 //! This part's `cargo xtask` entries (tour, bench, stress).
+//!
+//! All three train (or resume) the CPU-sized models of [`Benchmark`] under
+//! `target/pbdl/acdm/runs/`: ACDM and the U-Net baselines at width [`DIM`], batch 16, for
+//! `PBDL_ACDM_TRAIN_STEPS` updates (default [`TRAIN_STEPS`]); quick mode uses the tiny data and
+//! a handful of updates (plumbing only, the numbers mean nothing).
 
+use super::benchmark::{stacked_gif, Benchmark};
+use super::data::{default_cache_dir, CylinderConfig, Sequence, CHANNELS};
+use super::eval::{evaluate, EvalConfig, EvalReport};
+use super::model::{Method, Model, ModelConfig, Sampler};
+use super::rollout::{rollout, FramePredictor};
+use crate::Error;
+use candle_core::Tensor;
 use pbdl_core::bench::BenchRow;
-use pbdl_core::registry::{Entry, StressCheck, TourOutcome};
+use pbdl_core::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
 
 /// Tour, bench and stress entries of this part.
 pub(crate) type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
 
-/// This part's entries (none yet).
+/// U-Net width of the CPU-sized models (official: 128).
+pub const DIM: usize = 16;
+/// Default training updates of the full entries (override with `PBDL_ACDM_TRAIN_STEPS`).
+pub const TRAIN_STEPS: usize = 1000;
+/// Held-out Reynolds number of the tour and bench.
+const RE: f64 = 950.0;
+
+/// This part's entries.
 pub(crate) fn entries() -> Entries {
-    (vec![], vec![], vec![])
+    (
+        vec![Entry {
+            name: "acdm_cylinder",
+            about: "ACDM vs the one-step U-Net on our own cylinder flow at held-out Re 950: rollout GIF (truth / ACDM / U-Net), MSE, LSiM, stability, Strouhal.",
+            run: tour,
+        }],
+        vec![Entry {
+            name: "acdm_samplers",
+            about: "Time per frame vs rollout error: ACDM with DDPM 20 and DDIM 10 / 5 steps against the U-Net baselines (one-step, unrolled m = 8, training noise).",
+            run: bench,
+        }],
+        vec![Entry {
+            name: "acdm_long_rollout",
+            about: "A 10,000-step ACDM rollout (DDIM 5) and sampling at out-of-range Re stay finite; bad configs and mismatched conditioning give typed errors.",
+            run: stress,
+        }],
+    )
+}
+
+fn setup(ctx: &TaskContext) -> TaskResult<(Benchmark, usize, usize)> {
+    let dir = default_cache_dir();
+    if ctx.quick {
+        return Ok((Benchmark::quick(&dir)?, 4, 4));
+    }
+    let steps = std::env::var("PBDL_ACDM_TRAIN_STEPS").ok().and_then(|s| s.parse().ok()).unwrap_or(TRAIN_STEPS);
+    Ok((Benchmark::full(&dir)?, steps, 16))
+}
+
+fn held_out(b: &Benchmark) -> TaskResult<&Sequence> {
+    let re = if b.held_out(RE).is_some() { RE } else { b.test.sequences[0].re };
+    b.held_out(re).ok_or_else(|| "no held-out sequence".into())
+}
+
+fn tour(ctx: &TaskContext) -> TaskResult<TourOutcome> {
+    let (b, steps, batch) = setup(ctx)?;
+    let (mut acdm, _) = b.model(Method::Acdm, DIM, steps, batch)?;
+    acdm.set_sampler(Sampler::Ddim(10))?;
+    let (unet, _) = b.model(Method::Unet, DIM, steps, batch)?;
+    let seq = held_out(&b)?;
+    let n = if ctx.quick { 10 } else { 200 };
+    let cfg = EvalConfig { steps: n, samples: 1, seed: 1, lsim_every: 10 };
+    let lsim = pbdl_metrics::Lsim::load_default().ok();
+    let mut rows = Vec::new();
+    let mut reports: Vec<EvalReport> = Vec::new();
+    for m in [&acdm as &dyn FramePredictor, &unet] {
+        let r = evaluate(m, seq, &b.norm, &b.test.config, &cfg, lsim.as_ref())?;
+        rows.push(TourRow {
+            item: format!("{} Re {:.0}, {} steps, {DIM}-wide U-Net, {steps} updates", r.model, r.re, r.steps),
+            seconds: r.seconds,
+            error: Some(r.mse),
+            error_kind: "MSE vs ground truth (normalised fields)".into(),
+            note: format!(
+                "|ds/dt| ratio {:.2}, St {:.3} vs {:.3}, LSiM vx {:.3}",
+                r.stability_ratio(),
+                r.strouhal,
+                r.strouhal_truth,
+                r.lsim[0]
+            ),
+        });
+        reports.push(r);
+    }
+    // The picture: vy of truth, ACDM and U-Net over the first frames of the rollout.
+    let h = 2;
+    let truth = b.norm.normalize(seq)?;
+    let init_a = truth.narrow(0, 0, h)?.unsqueeze(0)?;
+    let init_u = truth.narrow(0, 1, 1)?.unsqueeze(0)?;
+    let re = [b.norm.re_value(seq.re)];
+    let k = n.min(100);
+    let ra = rollout(&acdm, &init_a, &re, k, 1)?.frames.squeeze(1)?;
+    let ru = rollout(&unet, &init_u, &re, k, 1)?.frames.squeeze(1)?;
+    let t = truth.narrow(0, h, ra.dim(0)?.min(ru.dim(0)?))?;
+    let (ra, ru) = (ra.narrow(0, 0, t.dim(0)?)?, ru.narrow(0, 0, t.dim(0)?)?);
+    let gif = ctx.out_dir.join("acdm_cylinder_vy.gif");
+    stacked_gif(&gif, &[&t, &ra, &ru], 1, 1)?;
+    let mut markdown = format!(
+        "ACDM (noisy conditioning on 2 frames, R = 20, sampled with DDIM 10) and the one-step U-Net, both {DIM} wide, \
+         trained for {steps} updates of batch {batch} on {} Reynolds numbers; rolled out {n} steps at the held-out \
+         Re {:.0}.\n\n{}\n",
+        b.train.sequences.len(),
+        seq.re,
+        EvalReport::markdown_header()
+    );
+    for r in &reports {
+        markdown.push_str(&r.markdown_row());
+        markdown.push('\n');
+    }
+    markdown.push_str("\n![vy: truth (top), ACDM, U-Net](acdm_cylinder_vy.gif)\n");
+    Ok(TourOutcome { rows, files: vec![gif], markdown })
+}
+
+/// MSE over a short rollout and seconds per frame, for one predictor.
+fn bench_row(
+    m: &dyn FramePredictor,
+    b: &Benchmark,
+    seq: &Sequence,
+    steps: usize,
+    threads: usize,
+) -> TaskResult<BenchRow> {
+    let cfg = EvalConfig { steps, samples: 1, seed: 3, lsim_every: 0 };
+    let r = evaluate(m, seq, &b.norm, &b.test.config, &cfg, None)?;
+    let (nx, ny) = b.test.config.data_size();
+    Ok(BenchRow {
+        case: format!("acdm_cylinder_re{:.0}", seq.re),
+        method: r.model,
+        size: format!("{nx}x{ny}_d{DIM}"),
+        seconds: r.seconds_per_frame,
+        unit: "frame".into(),
+        error: Some(r.mse),
+        error_kind: format!("mse_normalised_{steps}_step_rollout"),
+        peer: false,
+        threads,
+    })
+}
+
+fn bench(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    let (b, steps, batch) = setup(ctx)?;
+    let seq = held_out(&b)?;
+    let n = if ctx.quick { 3 } else { 20 };
+    let mut rows = Vec::new();
+    let (mut acdm, _) = b.model(Method::Acdm, DIM, steps, batch)?;
+    for s in [Sampler::Ddpm, Sampler::Ddim(10), Sampler::Ddim(5)] {
+        acdm.set_sampler(s)?;
+        rows.push(bench_row(&acdm, &b, seq, n, ctx.threads)?);
+    }
+    for method in [Method::Unet, Method::UnetUnrolled { m: 8 }, Method::UnetNoise { sigma: 0.01 }] {
+        let (m, _) = b.model(method, DIM, steps, batch)?;
+        rows.push(bench_row(&m, &b, seq, n, ctx.threads)?);
+    }
+    Ok(rows)
+}
+
+fn stress(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    let (b, steps, batch) = setup(ctx)?;
+    let (mut acdm, _) = b.model(Method::Acdm, DIM, steps, batch)?;
+    acdm.set_sampler(Sampler::Ddim(5))?;
+    let seq = held_out(&b)?;
+    let truth = b.norm.normalize(seq)?;
+    let init = truth.narrow(0, 0, 2)?.unsqueeze(0)?;
+    let mut checks = Vec::new();
+    let n = if ctx.quick { 50 } else { 10_000 };
+    let r = rollout(&acdm, &init, &[b.norm.re_value(seq.re)], n, 11)?;
+    let max = r.frames.abs()?.max_all()?.to_scalar::<f32>()?;
+    checks.push(StressCheck {
+        invariant: format!("ACDM (DDIM 5) {n}-step rollout at Re {:.0} stays finite", seq.re),
+        passed: r.first_non_finite.is_none(),
+        first_broken_step: r.first_non_finite.map(|s| s as u64),
+        detail: format!("{} steps in {:.0} s, max |normalised value| {max:.2}", r.frames.dim(0)?, r.seconds),
+    });
+    // Out-of-range Reynolds numbers: the Re channel far outside the training range 150..900.
+    let m = if ctx.quick { 5 } else { 100 };
+    for re in [10.0, 50.0, 2000.0, 5000.0] {
+        let v = b.norm.re_value(re);
+        let mut start = init.clone();
+        let c = CHANNELS - 1;
+        let re_ch = Tensor::full(v as f32, (1, 2, 1, init.dim(3)?, init.dim(4)?), init.device())?;
+        start = Tensor::cat(&[start.narrow(2, 0, c)?, re_ch], 2)?;
+        let r = rollout(&acdm, &start, &[v], m, 13)?;
+        checks.push(StressCheck {
+            invariant: format!("ACDM sampling at out-of-range Re {re} ({m} steps) stays finite"),
+            passed: r.first_non_finite.is_none(),
+            first_broken_step: r.first_non_finite.map(|s| s as u64),
+            detail: format!("normalised Re channel {v:.2}; {} steps in {:.1} s", r.frames.dim(0)?, r.seconds),
+        });
+    }
+    // Bad configs and mismatched conditioning shapes: typed errors, no panics.
+    let wrong = Tensor::zeros((1, 1, CHANNELS, init.dim(3)?, init.dim(4)?), candle_core::DType::F32, init.device())?;
+    let typed = [
+        matches!(acdm.predict(&wrong, 0), Err(Error::ShapeMismatch { .. })),
+        matches!(rollout(&acdm, &init, &[0.0, 1.0], 1, 0), Err(Error::ShapeMismatch { .. })),
+        matches!(acdm.set_sampler(Sampler::Ddim(0)), Err(Error::InvalidConfig { .. })),
+        matches!(
+            Model::new(ModelConfig::baseline(Method::UnetUnrolled { m: 0 }, DIM)),
+            Err(Error::InvalidConfig { .. })
+        ),
+        matches!(
+            super::data::generate(&CylinderConfig { sim_nx: 7, ..CylinderConfig::tiny() }, &[100.0]),
+            Err(Error::InvalidConfig { .. })
+        ),
+    ];
+    checks.push(StressCheck {
+        invariant: "bad configs and mismatched conditioning shapes give typed errors".into(),
+        passed: typed.iter().all(|&x| x),
+        first_broken_step: typed.iter().position(|&x| !x).map(|i| i as u64),
+        detail: format!(
+            "{} of {} cases typed (wrong history, batch/Re mismatch, DDIM 0, m = 0, odd grid)",
+            typed.iter().filter(|&&x| x).count(),
+            typed.len()
+        ),
+    });
+    Ok(checks)
 }

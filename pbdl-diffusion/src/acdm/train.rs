@@ -1,0 +1,192 @@
+//! Training of the [`Model`]s on normalised sequences: random windows, Adam, gradient
+//! clipping, the NaN guard, a progress bar and atomic, resumable checkpoints.
+
+use super::data::{CHANNELS, FIELDS};
+use super::model::{Method, Model};
+use crate::ddpm::Loss;
+use crate::{Error, Result};
+use candle_core::{Tensor, D};
+use pbdl_core::io::{latest_checkpoint, save_varmap, CheckpointMeta};
+use pbdl_core::train::{train_step, AdamConfig, ClipConfig, NanGuard, OptimizerConfig, Progress, ScalarLog};
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Settings of a training run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainConfig {
+    /// Parameter updates.
+    pub steps: usize,
+    /// Windows per update.
+    pub batch: usize,
+    /// Adam learning rate.
+    pub lr: f64,
+    /// Global gradient-norm clip.
+    pub clip_norm: f64,
+    /// Seed of window selection and noise.
+    pub seed: u64,
+    /// Updates between checkpoints (0: only at the end).
+    pub checkpoint_every: usize,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self { steps: 2000, batch: 16, lr: 1e-3, clip_norm: 1.0, seed: 0, checkpoint_every: 250 }
+    }
+}
+
+impl TrainConfig {
+    fn validate(&self) -> Result<()> {
+        let bad = |name, value: String, hint| Err(Error::InvalidConfig { name, value, hint });
+        if self.batch == 0 {
+            return bad("batch", "0".into(), "use at least 1 window per update (official: 64; CPU runs: 16)");
+        }
+        if !(self.lr > 0.0 && self.lr.is_finite()) {
+            return bad("lr", self.lr.to_string(), "use a positive finite learning rate, e.g. 1e-3");
+        }
+        if self.clip_norm.is_nan() || self.clip_norm <= 0.0 {
+            return bad("clip_norm", self.clip_norm.to_string(), "use a positive gradient-norm bound, e.g. 1");
+        }
+        Ok(())
+    }
+}
+
+/// What a run did.
+#[derive(Clone, Debug)]
+pub struct TrainReport {
+    /// `(step, loss)` of every update of this run.
+    pub losses: Vec<(u64, f64)>,
+    /// The step the run started from (a resumed checkpoint's, else 0).
+    pub resumed_from: u64,
+    /// Wall-clock seconds of this run.
+    pub seconds: f64,
+    /// Mean seconds per update.
+    pub seconds_per_step: f64,
+}
+
+/// Frames a training window needs: history, then 1 target (or `m` for unrolled training).
+fn window_len(method: Method) -> usize {
+    method.history()
+        + match method {
+            Method::UnetUnrolled { m } => m,
+            _ => 1,
+        }
+}
+
+/// A batch of windows `[B, L, C, ny, nx]` drawn from `seqs` (each `[T, C, ny, nx]`).
+pub fn sample_windows(seqs: &[Tensor], len: usize, batch: usize, rng: &mut impl Rng) -> Result<Tensor> {
+    let usable: Vec<&Tensor> = seqs.iter().filter(|s| s.dim(0).map(|t| t >= len).unwrap_or(false)).collect();
+    if usable.is_empty() {
+        return Err(Error::InvalidConfig {
+            name: "training sequences",
+            value: format!("{} sequences", seqs.len()),
+            hint: "give at least one sequence with as many frames as a window (history + targets)",
+        });
+    }
+    let mut w = Vec::with_capacity(batch);
+    for _ in 0..batch {
+        let s = usable[rng.random_range(0..usable.len())];
+        let t0 = rng.random_range(0..=s.dim(0)? - len);
+        w.push(s.narrow(0, t0, len)?);
+    }
+    Ok(Tensor::stack(&w, 0)?)
+}
+
+/// The training loss of `model` on a window batch `[B, L, C, ny, nx]`.
+pub fn loss(model: &Model, windows: &Tensor, seed: u64) -> Result<Tensor> {
+    let (b, l, c, ny, nx) = windows.dims5()?;
+    let method = model.config().method;
+    if c != CHANNELS || l != window_len(method) {
+        return Err(Error::shape("training windows", [b, window_len(method), CHANNELS, ny, nx], windows.dims()));
+    }
+    let h = method.history();
+    let cond = windows.narrow(1, 0, h)?.reshape((b, h * c, ny, nx))?;
+    let target = windows.narrow(1, h, 1)?.squeeze(1)?;
+    let unet = model.unet();
+    match method {
+        Method::Acdm | Method::AcdmNcn => {
+            let diff = model.diffusion().ok_or_else(|| Error::shape("diffusion model", "a schedule", "none"))?;
+            diff.loss(unet, &target, Some(&cond), Loss::Huber, seed)
+        }
+        Method::Unet => Ok((unet.forward(&cond, None)? - &target)?.sqr()?.mean_all()?),
+        Method::UnetNoise { sigma } => {
+            let noise = pbdl_core::seed::randn(cond.shape(), 0.0, sigma, cond.dtype(), cond.device(), seed)?;
+            Ok((unet.forward(&(cond + noise)?, None)? - &target)?.sqr()?.mean_all()?)
+        }
+        Method::UnetUnrolled { m } => {
+            let re = windows.narrow(2, FIELDS, 1)?.narrow(1, 0, 1)?.squeeze(1)?;
+            let mut x = cond;
+            let mut total: Option<Tensor> = None;
+            for k in 0..m {
+                let pred = unet.forward(&x, None)?;
+                let truth = windows.narrow(1, h + k, 1)?.squeeze(1)?;
+                let l = (&pred - &truth)?.sqr()?.mean_all()?;
+                total = Some(match total {
+                    Some(t) => (t + l)?,
+                    None => l,
+                });
+                // As in the rollouts: the Re channel is reset to its true value.
+                x = Tensor::cat(&[pred.narrow(1, 0, FIELDS)?, re.clone()], D::Minus(3))?;
+            }
+            Ok((total.expect("m >= 1 (validated)") / m as f64)?)
+        }
+    }
+}
+
+/// Trains `model` on normalised sequences `[T, 4, ny, nx]`. With `dir`, resumes from its latest
+/// checkpoint (weights; Adam's moments restart), logs every update to `dir/loss.csv` and
+/// writes `dir/step-<n>` every
+/// `checkpoint_every` updates and at the end. Stops with [`Error::Core`] (diverged) on a
+/// non-finite loss or gradient, leaving the last checkpoint intact.
+pub fn train(model: &Model, seqs: &[Tensor], config: &TrainConfig, dir: Option<&Path>) -> Result<TrainReport> {
+    config.validate()?;
+    let mut start = 0u64;
+    if let Some(dir) = dir {
+        if let Some(path) = latest_checkpoint(dir)? {
+            start = pbdl_core::io::load_varmap(&path, model.varmap())?.step;
+        }
+    }
+    let vars = model.varmap().all_vars();
+    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: config.lr, ..Default::default() }).build(vars.clone())?;
+    let clip = ClipConfig::Norm { max_norm: config.clip_norm };
+    let mut guard = NanGuard::new();
+    let mut log = None;
+    if let Some(dir) = dir {
+        guard = guard.with_checkpoint(dir.display().to_string());
+        std::fs::create_dir_all(dir).map_err(|e| pbdl_core::Error::io(dir, e))?;
+        log = Some(ScalarLog::open(dir.join("loss.csv"))?);
+    }
+    let progress = Progress::new(config.steps as u64);
+    let mut rng = pbdl_core::seed::rng(config.seed ^ start.wrapping_mul(0x2545_F491_4F6C_DD1D));
+    let len = window_len(model.config().method);
+    let meta = |step: u64| CheckpointMeta {
+        step,
+        seed: Some(config.seed),
+        config: serde_json::json!({ "model": model.config(), "train": config }),
+    };
+    let t0 = std::time::Instant::now();
+    let mut losses = Vec::new();
+    for step in start..config.steps as u64 {
+        let w = sample_windows(seqs, len, config.batch, &mut rng)?;
+        let l = loss(model, &w, rng.random())?;
+        let info = train_step(step, &l, &mut opt, &vars, &clip, &mut guard)?;
+        losses.push((step, info.loss));
+        if let Some(log) = log.as_mut() {
+            log.log(
+                step,
+                &[("loss", info.loss), ("grad_norm", info.grad_norm), ("seconds", t0.elapsed().as_secs_f64())],
+            )?;
+        }
+        progress.update(step + 1, info.loss);
+        let done = step + 1 == config.steps as u64;
+        if let Some(dir) = dir {
+            if done || (config.checkpoint_every > 0 && (step + 1) % config.checkpoint_every as u64 == 0) {
+                save_varmap(dir.join(format!("step-{}", step + 1)), model.varmap(), &meta(step + 1))?;
+            }
+        }
+    }
+    progress.finish();
+    let seconds = t0.elapsed().as_secs_f64();
+    let n = losses.len().max(1) as f64;
+    Ok(TrainReport { losses, resumed_from: start, seconds, seconds_per_step: seconds / n })
+}

@@ -1,0 +1,158 @@
+//! The whole experiment in one call: generate (or load cached) data, train a metric from
+//! scratch on advection-diffusion + Burgers, and score it with the LSiM protocol next to L2,
+//! SSIM and (when its weights are found) the published LSiM, on test sequences of the training
+//! kinds and of two kinds never trained on (smoke, shapes).
+
+use super::data::{cached, generate, DataConfig, Kind, Sequence};
+use super::eval::{evaluate, markdown_table, EvalRow, Scored};
+use super::fit::{train, TrainConfig, TrainReport};
+use super::loss::GroundTruth;
+use super::model::{MetricNet, MetricNetConfig};
+use crate::{Lsim, LsimSize, Result};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Settings of [`run_experiment`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExperimentConfig {
+    /// Training sequences per training kind (advection-diffusion, Burgers). Default 60.
+    pub train_per_kind: usize,
+    /// Test sequences per kind (all four kinds). Default 30.
+    pub test_per_kind: usize,
+    /// Training epochs. Default 10.
+    pub epochs: usize,
+    /// Channel-width multiplier of the network. Default 1.0 (LSiM's widths).
+    pub width: f64,
+    /// Frame size. Default 64.
+    pub resolution: usize,
+    /// Adam learning rate. Default 1e-4.
+    pub lr: f64,
+    /// Ground truth of the training pairs. Default linear (LSiM).
+    pub ground_truth: GroundTruth,
+    /// Seed of data, initialisation and training (test data use `seed + 1000`). Default 0.
+    pub seed: u64,
+    /// Where data are cached as `.npz` and the model and table are written. Default none.
+    pub out_dir: Option<PathBuf>,
+    /// Also score the published LSiM when its weights are found (adds ~1 s per sequence).
+    pub published_lsim: bool,
+    /// Show a progress bar while training (only on a terminal).
+    pub progress: bool,
+}
+
+impl Default for ExperimentConfig {
+    fn default() -> Self {
+        Self {
+            train_per_kind: 60,
+            test_per_kind: 30,
+            epochs: 10,
+            width: 1.0,
+            resolution: 64,
+            lr: 1e-4,
+            ground_truth: GroundTruth::Linear,
+            seed: 0,
+            out_dir: None,
+            published_lsim: true,
+            progress: false,
+        }
+    }
+}
+
+/// What [`run_experiment`] measured.
+#[derive(Debug)]
+pub struct ExperimentReport {
+    /// Spearman per metric and data set.
+    pub rows: Vec<EvalRow>,
+    /// [`markdown_table`] of the rows.
+    pub table: String,
+    /// The training run.
+    pub training: TrainReport,
+    /// Number of trainable parameters.
+    pub parameters: usize,
+    /// Number of training sequences.
+    pub train_sequences: usize,
+    /// Seconds spent generating (or loading) data.
+    pub data_seconds: f64,
+    /// Seconds spent evaluating.
+    pub eval_seconds: f64,
+    /// The trained network.
+    pub net: MetricNet,
+}
+
+impl ExperimentReport {
+    /// The Spearman correlation of `metric` (row label) on `set` (column label).
+    pub fn score(&self, metric: &str, set: &str) -> Option<f64> {
+        self.rows.iter().find(|r| r.metric == metric)?.scores.iter().find(|(s, _)| s == set).map(|x| x.1)
+    }
+}
+
+/// Column labels of the held-out kinds.
+pub const UNSEEN: [&str; 2] = ["Smo (unseen kind)", "Sha (unseen kind)"];
+
+/// Runs the experiment (module docs).
+pub fn run_experiment(cfg: &ExperimentConfig) -> Result<ExperimentReport> {
+    let t = Instant::now();
+    let data = |kind: Kind, count: usize, split: &str, seed: u64| -> Result<Vec<Sequence>> {
+        let dc = DataConfig { resolution: cfg.resolution, seed };
+        match &cfg.out_dir {
+            Some(dir) => {
+                cached(dir.join(format!("{}_{split}_{count}_{}_s{seed}.npz", kind.short(), cfg.resolution)), || {
+                    generate(kind, count, &dc)
+                })
+            }
+            None => generate(kind, count, &dc),
+        }
+    };
+    let mut train_set = data(Kind::AdvectionDiffusion, cfg.train_per_kind, "train", cfg.seed)?;
+    train_set.extend(data(Kind::Burgers, cfg.train_per_kind, "train", cfg.seed)?);
+    let ts = cfg.seed + 1000;
+    let n = cfg.test_per_kind;
+    let sets = vec![
+        ("Adv".to_string(), data(Kind::AdvectionDiffusion, n, "test", ts)?),
+        ("Bur".to_string(), data(Kind::Burgers, n, "test", ts)?),
+        (UNSEEN[0].to_string(), data(Kind::Smoke, n, "test", ts)?),
+        (UNSEEN[1].to_string(), data(Kind::Shapes, n, "test", ts)?),
+    ];
+    let data_seconds = t.elapsed().as_secs_f64();
+
+    let mut net = MetricNet::new(MetricNetConfig { width: cfg.width, seed: cfg.seed, ..Default::default() })?;
+    let tc = TrainConfig {
+        epochs: cfg.epochs,
+        adam: pbdl_core::train::AdamConfig { lr: cfg.lr, ..Default::default() },
+        ground_truth: cfg.ground_truth,
+        seed: cfg.seed,
+        progress: cfg.progress,
+        ..Default::default()
+    };
+    let training = train(&mut net, &train_set, &tc)?;
+
+    let t = Instant::now();
+    let lsim = if cfg.published_lsim {
+        crate::weights::weights_dir().and_then(|d| Lsim::load(d.join(crate::weights::LSIM_FILE)).ok())
+    } else {
+        None
+    };
+    let mut metrics = vec![Scored::L2, Scored::Ssim];
+    if let Some(l) = &lsim {
+        metrics.push(Scored::Lsim(l, LsimSize::Resize224));
+    }
+    metrics.push(Scored::Trained(&net));
+    let rows = evaluate(&metrics, &sets)?;
+    let table = markdown_table(&rows);
+    let eval_seconds = t.elapsed().as_secs_f64();
+    if let Some(dir) = &cfg.out_dir {
+        net.save(dir.join("metric"), (cfg.epochs * train_set.len()) as u64)?;
+        training.log.save(dir.join("train_log.csv"))?;
+        std::fs::write(dir.join("table.md"), &table)
+            .map_err(|source| crate::Error::Io { path: dir.join("table.md"), source })?;
+    }
+    Ok(ExperimentReport {
+        rows,
+        table,
+        parameters: net.parameter_count(),
+        train_sequences: train_set.len(),
+        training,
+        data_seconds,
+        eval_seconds,
+        net,
+    })
+}
