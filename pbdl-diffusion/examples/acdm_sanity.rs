@@ -1,14 +1,15 @@
 //! Sanity check of the ACDM training signal on a small crop: prints the loss every 10 updates.
 //!
 //! `cargo run -p pbdl-diffusion --example acdm_sanity -- [METHOD] [DIM] [STEPS]`
+use pbdl_core::train::{train_step, AdamConfig, ClipConfig, NanGuard, OptimizerConfig};
 use pbdl_diffusion::acdm::data::{generate, CylinderConfig, Normalization};
 use pbdl_diffusion::acdm::model::{Method, Model, ModelConfig};
 use pbdl_diffusion::acdm::train::{loss, sample_windows};
-use pbdl_core::train::{train_step, AdamConfig, ClipConfig, NanGuard, OptimizerConfig};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
-    let method = if a.first().map(String::as_str) == Some("unet") { Method::Unet } else { Method::Acdm };
+    let variant = a.first().cloned().unwrap_or_default();
+    let method = if variant == "unet" { Method::Unet } else { Method::Acdm };
     let dim: usize = a.get(1).and_then(|s| s.parse().ok()).unwrap_or(8);
     let steps: usize = a.get(2).and_then(|s| s.parse().ok()).unwrap_or(200);
     let d = generate(&CylinderConfig::tiny(), &[300.0])?;
@@ -25,11 +26,36 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut acc = 0.0;
     for step in 0..steps as u64 {
         let w = sample_windows(&seqs, len, 8, &mut rng)?;
-        let l = loss(&model, &w, step)?;
+        let l = match variant.as_str() {
+            // High-noise steps only: eps is almost the input, an easy identity to learn.
+            "acdm_hi" => {
+                let (b, _, c, h, wd) = w.dims5()?;
+                let cond = w.narrow(1, 0, 2)?.reshape((b, 2 * c, h, wd))?;
+                let x0 = w.narrow(1, 2, 1)?.squeeze(1)?;
+                let eps = pbdl_core::seed::randn(
+                    (b, 3 * c, h, wd),
+                    0.0,
+                    1.0,
+                    candle_core::DType::F32,
+                    &candle_core::Device::Cpu,
+                    step,
+                )?;
+                let diff = model.diffusion().unwrap();
+                diff.loss_at(model.unet(), &x0, Some(&cond), &vec![19; b], &eps, pbdl_diffusion::ddpm::Loss::Mse)?
+            }
+            _ => loss(&model, &w, step)?,
+        };
         let info = train_step(step, &l, &mut opt, &vars, &ClipConfig::Norm { max_norm: 1.0 }, &mut guard)?;
         acc += info.loss;
         if (step + 1) % 10 == 0 {
-            println!("{} step {}: mean loss {:.4}, grad norm {:.3}, {:.1} s", method.name(), step + 1, acc / 10.0, info.grad_norm, t0.elapsed().as_secs_f64());
+            println!(
+                "{} step {}: mean loss {:.4}, grad norm {:.3}, {:.1} s",
+                method.name(),
+                step + 1,
+                acc / 10.0,
+                info.grad_norm,
+                t0.elapsed().as_secs_f64()
+            );
             acc = 0.0;
         }
     }

@@ -2,7 +2,8 @@
 //!
 //! `cargo test -p pbdl-diffusion --test acdm_acceptance -- --ignored --nocapture`
 //!
-//! Environment: `PBDL_ACDM_TRAIN_STEPS` (default 1000 updates of batch 16, width 16),
+//! Environment: `PBDL_ACDM_TRAIN_STEPS` (default 1000 updates of batch 16; ACDM 48 wide, the
+//! baselines 16 wide, see `acdm::entries` for why),
 //! `PBDL_ACDM_ROLLOUT` (default 1000 steps), `PBDL_ACDM_SAMPLER` (`ddpm` default, or `ddimK`),
 //! `PBDL_ACDM_BASELINES` (`unet` default; a comma list of `unet`, `unet_tn`, `unet_ut8`).
 //! Models are cached (resumable) under `target/pbdl/acdm/runs/full/`.
@@ -35,12 +36,12 @@ fn acdm_beats_one_step_unet_on_held_out_reynolds_numbers() {
         Some(s) if s.starts_with("ddim") => Sampler::Ddim(s[4..].parse().unwrap()),
         _ => Sampler::Ddpm,
     };
-    let (mut acdm, rep) = b.model(Method::Acdm, 16, steps, 16).unwrap();
+    let (mut acdm, rep) = b.model(Method::Acdm, 48, steps, 16).unwrap();
     if let Some(r) = rep {
         println!("acdm trained {}..{steps}: {:.2} s/update", r.resumed_from, r.seconds_per_step);
     }
     acdm.set_sampler(sampler).unwrap();
-    let lsim = pbdl_metrics::Lsim::load_default().ok();
+    let lsim = pbdl_diffusion::acdm::eval::load_lsim();
     println!("{}", EvalReport::markdown_header());
     let cfg = EvalConfig { steps: n, samples: 1, seed: 5, lsim_every: 10 };
     let mut acdm_ok = true;

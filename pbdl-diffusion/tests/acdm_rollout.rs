@@ -73,8 +73,14 @@ fn replaying_the_truth_scores_perfectly() {
     let seq = &d.sequences[0];
     let truth = norm.normalize(seq).unwrap();
     let model = Replay { truth, history: 2 };
-    let cfg = EvalConfig { steps: 100, samples: 2, seed: 0, lsim_every: 0 };
-    let r = evaluate(&model, seq, norm, &d.config, &cfg, None).unwrap();
+    let cfg = EvalConfig { steps: 100, samples: 2, seed: 0, lsim_every: 50 };
+    // LSiM of identical fields is exactly 0.
+    let lsim = pbdl_diffusion::acdm::eval::load_lsim();
+    let r = evaluate(&model, seq, norm, &d.config, &cfg, lsim.as_ref()).unwrap();
+    match lsim {
+        Some(_) => assert_eq!(r.lsim, [0.0; 3]),
+        None => println!("LSiM weights not found: LSiM part skipped"),
+    }
     println!("{r:?}");
     assert_eq!((r.steps, r.first_non_finite), (100, None));
     assert!(r.mse < 1e-12, "{}", r.mse);

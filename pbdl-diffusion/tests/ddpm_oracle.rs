@@ -293,6 +293,20 @@ fn clean_conditioning_samples_the_conditional_distribution() {
     assert!((resid - ev).abs() < 4.0 * se_resid);
     // The conditional mean is reproduced within 4 SE of the truth.
     assert!((slope - SLOPE).abs() < 4.0 * se && (intercept - INTERCEPT).abs() < 4.0 * se);
+    // DDIM (50 of the 200 steps, eta = 0) with the same condition: its mean map is exact up to
+    // the start-noise mismatch, so the conditional mean is right; its variance is biased low
+    // (first-order in 1 / k, see the unconditional test) and only printed.
+    let x0 = d.sample_ddim(&o, Some(&c), &x_t, &d.ddim_steps(50).unwrap(), 0.0, 0).unwrap();
+    let (slope, intercept, resid, _) = regress(&c, &x0);
+    let (a, b) = exact_ddim(&s, &d.ddim_steps(50).unwrap(), 1.0, RESID);
+    println!(
+        "clean conditioning, DDIM 50 of 200: slope {slope:.4} intercept {intercept:.4} residual variance {resid:.4} \
+         (exact sampler: variance {:.4}, mean map b = {b:.4} x (1 + 0.8 c))",
+        a * a
+    );
+    assert!((slope - SLOPE).abs() < 4.0 * se && (intercept - INTERCEPT).abs() < 4.0 * se);
+    let (_, se_a) = standard_errors(a * a, n);
+    assert!((resid - a * a).abs() < 4.0 * se_a);
 }
 
 /// Exact `E[x | c] = p c + q` and `Var[x | c]` of ACDM's noisy-conditioning DDPM with the joint oracle.

@@ -55,18 +55,23 @@ fn short_heat_training_lowers_the_held_out_loss() {
 
 /// Acceptance: on held-out fields the corrected reconstructions (ODE and SDE) beat the plain
 /// inverse step on both the MSE of the re-simulated reconstruction and the spectral error.
+///
+/// Measured (1200 updates, 100 held-out fields): MSE truth 1.55e-4, plain 1.53e-4, ODE 1.30e-4,
+/// SDE 1.93e-4; spectral error plain 5.15, ODE 0.97, SDE 0.51. The SDE misses on MSE: the plain
+/// inverse re-simulates to the observation almost exactly (its MSE is below the truth's), and a
+/// posterior sample cannot do better than the truth on this metric, so this part fails.
 #[test]
-#[ignore = "acceptance run: trains the 32^2 heat score net; about 5-10 minutes on 2 cores"]
+#[ignore = "acceptance run: trains the 32^2 heat score net for 1200 updates; about 10 minutes on a loaded 2-core machine (RAYON_NUM_THREADS=1 is faster there)"]
 fn heat_corrected_reconstructions_beat_the_plain_inverse_step() {
     let p = HeatProblem::default();
-    let net = HeatScoreNet::new(16, 3, p.t1, DType::F32, 0).unwrap();
+    let net = HeatScoreNet::new(16, 2, p.t1, DType::F32, 0).unwrap();
     println!("score net: {} parameters", net.num_params());
-    let cfg = HeatTrainConfig { n_train: 1000, batch: 16, updates: 1500, lr: 1e-3, seed: 0, log_every: 100 };
+    let cfg = HeatTrainConfig { n_train: 500, batch: 16, updates: 1200, lr: 1e-3, seed: 0, log_every: 100 };
     let rep = train_heat(&p, &net, &cfg).unwrap();
     println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
     let t0 = Instant::now();
-    let e = evaluate_heat(&p, &net, 200, 12345).unwrap();
-    println!("evaluated 200 held-out fields in {:.1} s", t0.elapsed().as_secs_f64());
+    let e = evaluate_heat(&p, &net, 100, 12345).unwrap();
+    println!("evaluated 100 held-out fields in {:.1} s", t0.elapsed().as_secs_f64());
     for (name, s) in [("truth x0", e.truth), ("plain x - P", e.plain), ("ODE", e.ode), ("SDE", e.sde)] {
         println!("{name:12}: MSE {:.5e}  spectral error {:.4}", s.mse, s.spectral);
     }

@@ -4,8 +4,8 @@
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use pbdl_diffusion::uncertainty::{
-    compare, condition, diffusion, predict_stats, simulate_wake, train, Dataset, FieldStats, Normalizer,
-    SampleConfig, TrainConfig, WakeCase, WakeConfig,
+    compare, condition, diffusion, predict_stats, simulate_wake, train, Dataset, FieldStats, Normalizer, SampleConfig,
+    TrainConfig, WakeCase, WakeConfig,
 };
 use pbdl_diffusion::unet::{seeded_init, AcdmUnet, AcdmUnetConfig};
 use pbdl_diffusion::Error;
@@ -75,6 +75,9 @@ fn the_wake_simulation_gives_windowed_snapshots_and_a_mask() {
     let solid: f32 = (0..1024).filter(|&p| mask[p] == 1.0).map(|p| u[p].abs()).sum::<f32>() / inside as f32;
     assert!(solid < 0.1, "mean |u| in the cylinder {solid}");
     assert!((u[4 * 32] - 1.0).abs() < 0.3, "u near the lower wall {}", u[4 * 32]);
+    // 2 x 2 pooling keeps the solid area: the pooled mask sums to a quarter of the cell count.
+    let pooled = WakeConfig { pool: 2, out_size: [16, 16], ..cfg.clone() };
+    assert!((pooled.mask().iter().sum::<f32>() * 4.0 - inside as f32).abs() < 1e-5);
     let c = condition(&cfg, 150.0, 300.0, &Device::Cpu).unwrap();
     assert_eq!(c.dims(), [3, 32, 32]);
     assert_eq!(c.narrow(0, 1, 1).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap(), mask);
@@ -99,12 +102,8 @@ fn a_briefly_trained_surrogate_gives_finite_statistics() {
     let data = Dataset::new(&cfg, &cases, 5, 300.0, &norm, 0).unwrap();
     assert_eq!((data.cond.dims(), data.target.dims()), ([10, 3, 8, 8].as_slice(), [10, 2, 8, 8].as_slice()));
     let varmap = VarMap::new();
-    let config = AcdmUnetConfig {
-        dim_mults: vec![1, 1],
-        in_channels: 5,
-        out_channels: 2,
-        ..AcdmUnetConfig::acdm(8, 5)
-    };
+    let config =
+        AcdmUnetConfig { dim_mults: vec![1, 1], in_channels: 5, out_channels: 2, ..AcdmUnetConfig::acdm(8, 5) };
     let net = AcdmUnet::new(config, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
     seeded_init(&varmap, 0).unwrap();
     let d = diffusion().unwrap();

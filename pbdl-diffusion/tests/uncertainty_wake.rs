@@ -6,8 +6,17 @@
 //! snapshots per Re; AifNet 16 * [1, 2, 4, 4] (the paper's 32x32 network) with clean
 //! conditioning, cosine schedule T = 200, epsilon-MSE.
 //!
+//! Last run (2026-11-21, reduced: 16 x 16 by 2 x 2 pooling, AifNet 8 * [1, 2, 2] without
+//! attention, 72k parameters, 1000 steps of batch 25 in 1766 s, final loss ~0.06, 25 DDPM
+//! samples per test Re): std-field correlation 0.953-0.977 (passes > 0.8); mean-field relative
+//! error 0.039-0.082 (fails < 0.05 at 5 of 6 Re); predicted mean std ~0.104 at every Re against
+//! a true 0.063-0.093, ratio 1.13-1.61 (fails the 20% band at 4 of 6 Re). Copying the nearest
+//! training Re's statistics scores better on all three (mean error <= 0.03, ratio 0.81-1.04):
+//! the short training has not learned the Re dependence of the spread.
+//!
 //! `PBDL_WAKE_STEPS` (default 4000) and `PBDL_WAKE_SAMPLES` (default 50) shorten or lengthen
-//! the run.
+//! the run; `PBDL_WAKE_CKPT=path` saves the trained weights, `PBDL_WAKE_LOAD=path` samples from
+//! them without training; `PBDL_WAKE_POOL=2` and `PBDL_WAKE_NET=small` shrink the problem.
 
 use candle_core::{DType, Device};
 use candle_nn::{VarBuilder, VarMap};
@@ -27,7 +36,7 @@ fn env(name: &str, default: usize) -> usize {
 }
 
 #[test]
-#[ignore = "acceptance run: ~1 min simulation, training (PBDL_WAKE_STEPS), sampling; ~20 min on 2 cores"]
+#[ignore = "acceptance run, hours at the default size (AifNet-16 at 32x32: ~13 s/step measured under load ~19 on 2 cores); the reduced run PBDL_WAKE_POOL=2 PBDL_WAKE_NET=small PBDL_WAKE_STEPS=1000 PBDL_WAKE_SAMPLES=25 took 37 min and FAILS (see the file docs)"]
 fn wake_surrogate_predicts_mean_and_spread_on_unseen_reynolds_numbers() {
     let dev = Device::Cpu;
     // PBDL_WAKE_POOL=2 pools to 16 x 16 and PBDL_WAKE_NET=small takes AifNet 8 * [1, 2, 2]
@@ -67,24 +76,34 @@ fn wake_surrogate_predicts_mean_and_spread_on_unseen_reynolds_numbers() {
     let steps = env("PBDL_WAKE_STEPS", 4000);
     let tc = TrainConfig { steps, batch: 25, lr: 1e-3, seed: 1 };
     let t1 = Instant::now();
-    let losses = train(&net, varmap.all_vars(), &d, &data, &tc, |k, l| {
-        if k % 50 == 0 || k < 3 || k + 1 == steps {
-            println!("  step {k:>5}: loss {l:.4} ({:.0} s)", t1.elapsed().as_secs_f64());
+    if let Ok(path) = std::env::var("PBDL_WAKE_LOAD") {
+        // Sampling only, from a checkpoint written with PBDL_WAKE_CKPT by the same configuration.
+        pbdl_core::io::load_varmap(&path, &varmap).unwrap();
+        println!("{net_name}: weights from {path}");
+    } else {
+        let losses = train(&net, varmap.all_vars(), &d, &data, &tc, |k, l| {
+            if k % 50 == 0 || k < 3 || k + 1 == steps {
+                println!("  step {k:>5}: loss {l:.4} ({:.0} s)", t1.elapsed().as_secs_f64());
+            }
+        })
+        .unwrap();
+        let train_s = t1.elapsed().as_secs_f64();
+        let tail = &losses[losses.len().saturating_sub(200)..];
+        println!(
+            "{net_name} ({} parameters), {}x{}: {steps} steps, batch 25, in {train_s:.0} s ({:.0} ms/step); \
+             mean loss of the last {} steps {:.4}",
+            count_parameters(&varmap),
+            cfg.out_size[0],
+            cfg.out_size[1],
+            1e3 * train_s / steps as f64,
+            tail.len(),
+            tail.iter().sum::<f64>() / tail.len() as f64
+        );
+        if let Ok(path) = std::env::var("PBDL_WAKE_CKPT") {
+            let meta = pbdl_core::io::CheckpointMeta { step: steps as u64, seed: Some(1), config: Default::default() };
+            pbdl_core::io::save_varmap(&path, &varmap, &meta).unwrap();
         }
-    })
-    .unwrap();
-    let train_s = t1.elapsed().as_secs_f64();
-    let tail = &losses[losses.len().saturating_sub(200)..];
-    println!(
-        "{net_name} ({} parameters), {}x{}: {steps} steps, batch 25, in {train_s:.0} s ({:.0} ms/step); \
-         mean loss of the last {} steps {:.4}",
-        count_parameters(&varmap),
-        cfg.out_size[0],
-        cfg.out_size[1],
-        1e3 * train_s / steps as f64,
-        tail.len(),
-        tail.iter().sum::<f64>() / tail.len() as f64
-    );
+    }
 
     let n = env("PBDL_WAKE_SAMPLES", 50);
     println!(

@@ -226,9 +226,13 @@ fn reference_group_norm_1(x: &[f64], c: usize, w: &[f64], b: &[f64]) -> Vec<f64>
 
 #[test]
 fn attention_and_group_norm_match_direct_loops() {
-    let (c, h, w, heads, d) = (6, 4, 3, 2, 5);
-    let n = h * w;
-    for kind in [AttentionKind::Linear, AttentionKind::Full] {
+    // 6 channels, 2 heads x 5: linear attention composed from candle ops; 4 channels, 2 heads
+    // x 8 (4 x 4 <= 16): the fused linear-attention layer.
+    for ((c, heads, d), kind) in
+        [(6, 2, 5), (4, 2, 8)].into_iter().flat_map(|s| [(s, AttentionKind::Linear), (s, AttentionKind::Full)])
+    {
+        let (h, w) = (4, 3);
+        let n = h * w;
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F64, &CPU);
         let attn = Attention::new(kind, c, heads, d, vb.clone()).unwrap();
@@ -253,7 +257,7 @@ fn attention_and_group_norm_match_direct_loops() {
         }
         let got = to_vec(&attn.forward(&x).unwrap());
         let err = max_rel_diff(&got, &expect);
-        println!("{kind:?} attention vs direct loops: max rel diff {err:.2e}");
+        println!("{kind:?} attention ({c} channels, {heads} x {d}) vs direct loops: max rel diff {err:.2e}");
         assert!(err < 1e-12, "{kind:?}: {err:.2e}");
 
         // Residual pre-norm block: x + attn(GN(x)), with its own weights.

@@ -5,12 +5,35 @@
 //! ```text
 //! cargo run -p pbdl-metrics --example train_metric -- [--train 60] [--test 30] [--epochs 10]
 //!     [--width 1.0] [--res 64] [--lr 1e-4] [--gt linear|fit2] [--seed 0] [--no-lsim]
-//!     [--out target/metric-training]
+//!     [--out target/metric-training] [--fit2-stats]
 //! ```
 //! Data are cached as `.npz` under `--out` (delete them to regenerate); the trained model is
 //! written there as a pbdl checkpoint, the per-step log as `train_log.csv`, the table as `table.md`.
 
+use pbdl_metrics::train::data::{load_sequences, Kind};
+use pbdl_metrics::train::loss::fit2_coefficient;
 use pbdl_metrics::train::{run_experiment, ExperimentConfig, GroundTruth};
+
+/// `--fit2-stats`: the fitted "fit2" coefficients of the cached sequences in `--out`.
+fn fit2_stats(cfg: &ExperimentConfig) -> Result<(), Box<dyn std::error::Error>> {
+    let dir = cfg.out_dir.as_ref().ok_or("no --out")?;
+    for kind in Kind::ALL {
+        for entry in std::fs::read_dir(dir)? {
+            let path = entry?.path();
+            let name = path.file_name().and_then(|n| n.to_str()).unwrap_or_default().to_string();
+            if !name.starts_with(kind.short()) || !name.ends_with(".npz") {
+                continue;
+            }
+            let mut c: Vec<f64> =
+                load_sequences(&path)?.iter().filter_map(|s| fit2_coefficient(&s.frames).ok()).collect();
+            c.sort_by(f64::total_cmp);
+            if let (Some(lo), Some(hi)) = (c.first(), c.last()) {
+                println!("{name}: {} fits, c min {lo:.2}, median {:.2}, max {hi:.2}", c.len(), c[c.len() / 2]);
+            }
+        }
+    }
+    Ok(())
+}
 
 fn arg<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> T {
     args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).and_then(|v| v.parse().ok()).unwrap_or(default)
@@ -36,6 +59,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         progress: true,
     };
     println!("{cfg:?}");
+    if args.iter().any(|a| a == "--fit2-stats") {
+        return fit2_stats(&cfg);
+    }
     let r = run_experiment(&cfg)?;
     let steps = cfg.epochs * r.train_sequences;
     println!(

@@ -205,6 +205,9 @@ fn distance_properties_of_the_trained_network() {
     // Uncalibrated networks and bad pairs are typed errors.
     assert!(tiny_net(3).sequence_distances(&seqs[0].frames, &[(0, 1)]).is_err());
     assert!(net.sequence_distances(&seqs[0].frames, &[(0, 11)]).is_err());
+    // Frames too small for the five layers (the last feature map would vanish): an error.
+    let small = Tensor::zeros((FRAMES, 1, 24, 24), DType::F32, &Device::Cpu).unwrap();
+    assert!(net.sequence_distances(&small, &[(0, 1)]).is_err());
 }
 
 #[test]
@@ -301,4 +304,16 @@ fn a_few_training_steps_reduce_the_loss() {
     for v in net.vars().iter().skip(10) {
         assert!(v.as_tensor().min_all().unwrap().to_scalar::<f32>().unwrap() >= 0.0);
     }
+}
+
+#[test]
+fn bad_settings_are_typed_errors() {
+    assert!(generate(Kind::Burgers, 1, &DataConfig { resolution: 8, seed: 0 }).is_err());
+    assert_eq!(Kind::parse("smo").unwrap(), Kind::Smoke);
+    assert!(Kind::parse("liquid").unwrap_err().to_string().contains("Adv, Bur, Smo, Sha"));
+    assert!(MetricNet::new(MetricNetConfig { width: 0.0, ..Default::default() }).is_err());
+    assert!(metric_loss(&v(&[0.1, 0.2]), &v(&[0.1, 0.2, 0.3]), &LossConfig::LSIM).is_err());
+    let cfg = LossConfig { correlation_pairs: 20, ..LossConfig::LSIM };
+    assert!(metric_loss(&v(&[0.1; 10]), &v(&[0.1; 10]), &cfg).is_err());
+    assert!(train(&mut tiny_net(0), &[], &TrainConfig::default()).is_err());
 }

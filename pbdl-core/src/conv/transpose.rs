@@ -181,6 +181,7 @@ mod tests {
             let theirs = x.conv_transpose2d(&w, p, op, s, d).unwrap();
             assert_eq!(ours.dims(), theirs.dims(), "case {i}");
             let err = max_abs(&(&ours - &theirs).unwrap()) / max_abs(&theirs);
+            println!("conv_transpose2d vs candle, case {i}: max rel diff {err:.2e}");
             assert!(err < 1e-5, "case {i}: relative difference {err:.2e}");
         }
     }
@@ -211,6 +212,7 @@ mod tests {
             &GradCheckOptions::default(),
         )
         .unwrap();
+        println!("conv_transpose2d FD: max rel error {:.2e}", report.max_rel_error);
         assert!(report.max_rel_error < 1e-6, "{report:?}");
     }
 

@@ -154,8 +154,8 @@ pub fn evaluate(
     if let (Some(metric), true) = (lsim, cfg.lsim_every > 0) {
         let idx: Vec<u32> = (0..n).step_by(cfg.lsim_every).map(|k| k as u32).collect();
         let idx = Tensor::new(idx.as_slice(), truth.device())?;
-        let p0 = pred.narrow(1, 0, 1)?.squeeze(1)?.index_select(&idx, 0)?;
-        let g0 = gt.index_select(&idx, 0)?;
+        let p0 = pred.narrow(1, 0, 1)?.squeeze(1)?.contiguous()?.index_select(&idx, 0)?;
+        let g0 = gt.contiguous()?.index_select(&idx, 0)?;
         for (f, v) in lsim_v.iter_mut().enumerate() {
             let a = g0.narrow(1, f, 1)?.contiguous()?;
             let b = p0.narrow(1, f, 1)?.contiguous()?;
@@ -182,5 +182,15 @@ pub fn evaluate(
         strouhal: mean(&st),
         strouhal_truth: st_truth,
         spread,
+    })
+}
+
+/// The LSiM metric: `pbdl_metrics`' default location (`$PBDL_WEIGHTS_DIR` or `../shared/weights`
+/// from the working directory), else the `shared/weights` folder beside the workspace; `None`
+/// when the weights are nowhere (LSiM columns are then NaN).
+pub fn load_lsim() -> Option<Lsim> {
+    Lsim::load_default().ok().or_else(|| {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/weights/LSiM.safetensors");
+        Lsim::load(p).ok()
     })
 }

@@ -1,5 +1,5 @@
 //! Rollout metrics: MSE, temporal stability, probe spectrum and shedding frequency, sample
-//! spread. LSiM lives in [`super::rollout::lsim_per_field`] (it needs the metric's weights).
+//! spread. LSiM per field is computed in [`super::eval::evaluate`] (it needs the metric's weights).
 
 use super::data::{cell_of, CylinderConfig, DIAMETER, INFLOW, PROBE};
 use crate::{Error, Result};

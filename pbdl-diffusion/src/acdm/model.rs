@@ -250,9 +250,10 @@ impl FramePredictor for Model {
     }
 
     fn name(&self) -> String {
+        let base = format!("{}_d{}", self.config.method.name(), self.config.dim);
         match &self.diffusion {
-            Some(_) => format!("{}-{}", self.config.method.name(), self.sampler.name()),
-            None => self.config.method.name(),
+            Some(_) => format!("{base}-{}", self.sampler.name()),
+            None => base,
         }
     }
 }

@@ -126,6 +126,9 @@ mod tests {
         let ctx = TaskContext { out_dir: std::env::temp_dir(), quick: true, threads: 1 };
         let rows = bench_oracle_sampling(&ctx).unwrap();
         assert_eq!(rows.len(), 7);
+        for r in &rows {
+            println!("{} {}: {:.4} s per sample, error {:.3e}", r.method, r.size, r.seconds, r.error.unwrap());
+        }
         for group in [&rows[..3], &rows[3..]] {
             let errs: Vec<f64> = group.iter().map(|r| r.error.unwrap()).collect();
             assert!(errs.windows(2).all(|w| w[1] < w[0]), "{errs:?}");

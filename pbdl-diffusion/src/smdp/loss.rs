@@ -7,6 +7,13 @@
 //!   rollout (through `P` and through the network's input).
 //!
 //! Both return the batch-mean loss and add its parameter gradient into a buffer.
+//!
+//! Which sampler each loss calibrates: with `r = x_t - dt P(x_t) - x_{t-dt}`, the 1-step
+//! minimiser is `s = -E[r | x_t] / dt`, so a reverse-SDE step (score weight 1) lands on
+//! `E[x_{t-dt} | x_t]`, while a probability-flow step (weight 1/2) corrects only half of the
+//! inverse physics' Euler error. The multi-step loss fits the ODE rollout itself, so its `s` is
+//! calibrated for the ODE and over-corrects in an SDE step. On the quadratic toy, where that
+//! Euler error is large near `t = 0`, this decides which sampler lands on `+-1`.
 
 use super::mlp::{MlpCache, ScoreMlp};
 use super::physics::ScalarDrift;

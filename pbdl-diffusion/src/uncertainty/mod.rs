@@ -17,6 +17,11 @@
 //! correlation of predicted and true standard-deviation fields, and the mean standard deviation
 //! `sigma_{y,a}` of each case (the paper plots it against the Reynolds number).
 //!
+//! The acceptance run is the ignored test `tests/uncertainty_wake.rs` (AifNet from
+//! [`crate::unet`]; our samplers put the condition channels *before* the noisy target, the
+//! airfoil code after it: irrelevant when training from scratch, it matters only for imported
+//! weights). Its last numbers are in that file.
+//!
 //! ```
 //! use candle_core::{Device, Tensor};
 //! use pbdl_diffusion::uncertainty::FieldStats;

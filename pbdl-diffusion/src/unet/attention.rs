@@ -68,20 +68,43 @@ impl Attention {
                 let qkv = self.to_qkv.forward(x)?;
                 Ok(self.to_out.forward(&full_attention(&qkv, heads, d)?)?)
             }
-            AttentionKind::Linear => {
-                // Both projections fused with the attention; the output bias and norm follow.
+            AttentionKind::Linear if 4 * x.dim(1)? <= heads * d => {
+                // Narrow feature maps: the projections fused with the attention, so the wide
+                // q/k/v tensor never reaches memory; the output bias and norm follow.
                 let y = linear_attention_layer(x, self.to_qkv.weight(), self.to_out.weight(), heads, d)?;
                 let y = match self.to_out.bias() {
                     Some(b) => y.broadcast_add(&b.reshape((1, b.dim(0)?, 1, 1))?)?,
                     None => y,
                 };
-                match &self.out_norm {
-                    Some(norm) => Ok(norm.apply(&y)?),
-                    None => Ok(y),
-                }
+                self.norm_out(y)
+            }
+            AttentionKind::Linear => {
+                // Wide feature maps: composed from candle ops, which measured faster there
+                // (dim 128, 128x64, batch 4: 0.65 against 1.03 CPU-s forward + backward).
+                let qkv = self.to_qkv.forward(x)?;
+                self.norm_out(self.to_out.forward(&linear_attention_composed(&qkv, heads, d)?)?)
             }
         }
     }
+
+    fn norm_out(&self, y: Tensor) -> Result<Tensor> {
+        match &self.out_norm {
+            Some(norm) => Ok(norm.apply(&y)?),
+            None => Ok(y),
+        }
+    }
+}
+
+/// Linear attention between the projections, from candle ops: `qkv` `[batch, 3 heads d, y, x]`
+/// to `[batch, heads d, y, x]`, `(softmax_n(k) v^T)^T softmax_d(q) / sqrt(d)` per head.
+fn linear_attention_composed(qkv: &Tensor, heads: usize, d: usize) -> Result<Tensor> {
+    let (b, _, h, w) = qkv.dims4()?;
+    let qkv = qkv.reshape((b, 3, heads, d, h * w))?;
+    let part = |i: usize| qkv.narrow(1, i, 1).and_then(|t| t.squeeze(1)).and_then(|t| t.contiguous());
+    let q = (softmax(&part(0)?, 2)? * (d as f64).powf(-0.5))?;
+    let k = softmax(&part(1)?, 3)?;
+    let context = k.matmul(&part(2)?.t()?)?; // [b, heads, d, e]
+    Ok(context.t()?.matmul(&q)?.reshape((b, heads * d, h, w))?) // [b, heads, e, n]
 }
 
 /// Full attention between the projections: `qkv` `[batch, 3 heads d, y, x]` (queries, keys,
@@ -121,5 +144,29 @@ impl ResidualAttention {
     /// `x + attention(norm(x))`.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
         Ok((self.attn.forward(&self.norm.apply(x)?)? + x)?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{DType, Device};
+    use candle_nn::VarMap;
+    use pbdl_core::{check_grad, seed, GradCheckOptions};
+
+    /// Both linear-attention paths (composed at 6 channels, fused at 4) and full attention
+    /// against central finite differences in the input.
+    #[test]
+    fn input_gradients_match_finite_differences() {
+        for (c, kind) in [(6, AttentionKind::Linear), (4, AttentionKind::Linear), (6, AttentionKind::Full)] {
+            let varmap = VarMap::new();
+            let vb = VarBuilder::from_varmap(&varmap, DType::F64, &Device::Cpu);
+            let attn = ResidualAttention::new(kind, c, 2, 8, vb).unwrap();
+            super::super::seeded_init(&varmap, 1).unwrap();
+            let x = seed::randn((2, c, 3, 4), 0.0, 1.0, DType::F64, &Device::Cpu, 2).unwrap();
+            let f = |t: &[Tensor]| attn.forward(&t[0]).map_err(candle_core::Error::wrap);
+            let report = check_grad(f, &[x], &GradCheckOptions::default()).unwrap();
+            assert!(report.max_rel_error < 1e-7, "{kind:?} at {c} channels: {report:?}");
+        }
     }
 }

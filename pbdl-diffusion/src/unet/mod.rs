@@ -11,7 +11,9 @@
 //! save checkpoints with `pbdl_core::io::save_varmap`; [`seeded_init`] gives reproducible
 //! weights and [`count_parameters`] counts a `VarMap`'s scalars. [`workload`] is the unit of
 //! the benchmarks. Convolutions run on `pbdl_core::conv` (im2col + gemm, with depthwise
-//! groups and a differentiable transposed convolution).
+//! groups and a differentiable transposed convolution). On narrow feature maps (width up to a
+//! quarter of the attention's 4 x 32) linear attention runs as one fused op with its two
+//! projections (`linear_attention.rs`), 2.6x less CPU time than composed candle ops at dim 16.
 
 mod acdm;
 mod aifnet;

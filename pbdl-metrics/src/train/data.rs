@@ -14,10 +14,14 @@
 //!   background (like the paper's synthetic "Sha" test set).
 //!
 //! Varied parameters ([`Param`]): the strength of a smooth perturbation of the initial state,
-//! the amplitude of smooth noise added at every step (one noise realisation shared by all
-//! variants), the advection direction, the viscosity, and for smoke the source position and the
-//! buoyancy. Initial states and noise are random sums of low Fourier modes; everything is
-//! seeded ([`pbdl_core::seed`]) and cached as `.npz` ([`save_sequences`], [`load_sequences`]).
+//! the amplitude of the noise added at every step, the advection direction, the viscosity, and
+//! for smoke the source position and the buoyancy. Besides the varied parameter, every variant
+//! (the reference too) gets its own smooth random noise at every step ([`NOISE_FLOOR`],
+//! [`SMOKE_NOISE_FLOOR`], [`SHAPES_NOISE`]), as the papers' data do: the variants then also
+//! differ randomly and ranking them is not trivial for L2. Initial states are random sums of
+//! low Fourier modes ([`smooth_field`]), noise is blurred white noise ([`smooth_noise`]);
+//! everything is seeded ([`pbdl_core::seed`]) and cached as `.npz` ([`save_sequences`],
+//! [`load_sequences`], [`cached`]).
 
 use crate::{Error, Result};
 use candle_core::{DType, Device, Tensor};
@@ -85,7 +89,8 @@ impl Kind {
 pub enum Param {
     /// Strength of a smooth perturbation added to the initial state.
     InitPerturbation,
-    /// Amplitude of smooth noise added at every step (the same noise for all variants).
+    /// Amplitude of the noise added at every step (`floor + t * amplitude`, each variant its own
+    /// realisation).
     Noise,
     /// Direction of the advection velocity (advection-diffusion).
     Direction,
