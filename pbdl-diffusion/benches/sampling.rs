@@ -3,6 +3,10 @@
 //! 20-step DDIM sample, each on a `[16, 2, 32, 32]` f32 batch with clean conditioning on one channel.
 #![allow(missing_docs)] // criterion_group! generates an undocumented pub fn
 
+// candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (see the workspace Cargo.toml).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use candle_core::{DType, Device};
 use criterion::{criterion_group, criterion_main, Criterion};
 use pbdl_diffusion::ddpm::{Conditioning, Diffusion, GaussianOracle};

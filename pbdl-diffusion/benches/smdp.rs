@@ -4,6 +4,10 @@
 //! its gradient on a `[16, 1, 32, 32]` f32 batch.
 #![allow(missing_docs)] // criterion_group! generates an undocumented pub fn
 
+// candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (see the workspace Cargo.toml).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use candle_core::{DType, Var};
 use criterion::{criterion_group, criterion_main, Criterion};
 use pbdl_diffusion::smdp::heat::{heat_step, HeatProblem};

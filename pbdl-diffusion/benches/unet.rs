@@ -6,6 +6,10 @@
 //! The PyTorch peer of the same step is `bench/peers/acdm_unet_torch.py`.
 #![allow(missing_docs)] // criterion_group! generates an undocumented pub fn
 
+// candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (see the workspace Cargo.toml).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use pbdl_diffusion::unet::workload::{UnetFixture, UnetWorkload};
 

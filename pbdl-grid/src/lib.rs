@@ -52,6 +52,7 @@ pub mod fd;
 pub mod field;
 pub mod fluid;
 pub mod forcing;
+mod laplacian_matrix;
 pub mod navier_stokes;
 pub mod obstacle;
 mod pad;

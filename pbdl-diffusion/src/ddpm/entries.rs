@@ -9,12 +9,14 @@
 //!   Gaussian noise for this predictor (DDIM: the sampler itself run on start values 0 and 1;
 //!   DDPM: the moment recursion of the ancestral step). `seconds` is the median time of one full
 //!   sample of a `[64, 2, 16, 16]` batch.
+//! * tour `ddpm_vs_ddim`: the same rows (quick sizes) and their time-vs-error plot (PNG).
 
 use super::{Conditioning, Diffusion, GaussianOracle};
 use crate::schedule::{NoiseSchedule, COSINE_S};
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::bench::{median_seconds, BenchRow};
-use pbdl_core::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome};
+use pbdl_core::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
+use pbdl_core::viz::{pareto_plot, ParetoPoint, PlotStyle};
 
 /// Tour, bench and stress entries of this part.
 pub(crate) type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
@@ -22,7 +24,11 @@ pub(crate) type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, V
 /// This part's entries.
 pub(crate) fn entries() -> Entries {
     (
-        vec![],
+        vec![Entry {
+            name: "ddpm_vs_ddim",
+            about: "DDPM and DDIM with the exact Gaussian noise predictor: sampling time vs the sampler's own variance error (PNG).",
+            run: tour_ddpm_vs_ddim,
+        }],
         vec![Entry {
             name: "ddpm_oracle_sampling",
             about: "DDPM (R = 20, 100, 1000) and DDIM (5, 10, 20, 50 of T = 1000) with the exact Gaussian noise predictor: time per batch sample vs exact output-variance error.",
@@ -115,6 +121,42 @@ fn bench_oracle_sampling(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         ));
     }
     Ok(rows)
+}
+
+fn tour_ddpm_vs_ddim(ctx: &TaskContext) -> TaskResult<TourOutcome> {
+    let rows = bench_oracle_sampling(&TaskContext { quick: true, ..ctx.clone() })?;
+    let points: Vec<ParetoPoint> = rows
+        .iter()
+        .map(|r| ParetoPoint {
+            method: r.method.clone(),
+            time: r.seconds,
+            error: r.error.unwrap_or(f64::NAN),
+            label: Some(r.size.split('_').next().unwrap_or("").to_string()),
+        })
+        .collect();
+    let png = ctx.out_dir.join("ddpm_vs_ddim.png");
+    let style = PlotStyle {
+        title: "DDPM vs DDIM, exact Gaussian noise predictor".into(),
+        x_label: "seconds per sample of [64, 2, 16, 16]".into(),
+        y_label: "relative error of the output variance".into(),
+        ..PlotStyle::pareto()
+    };
+    pareto_plot(&png, &points, &style)?;
+    let tour_rows = rows
+        .iter()
+        .map(|r| TourRow {
+            item: format!("{} {}", r.method, r.size),
+            seconds: r.seconds,
+            error: r.error,
+            error_kind: "rel. error of the output variance (exact, oracle predictor)".into(),
+            note: String::new(),
+        })
+        .collect();
+    let markdown = "Samplers against the exact noise predictor of Gaussian data: every error is the sampler's own \
+                    discretisation error (DDPM: cosine schedules with R steps; DDIM: k of T = 1000 steps, eta = 0).\n\n\
+                    ![DDPM vs DDIM](ddpm_vs_ddim.png)\n"
+        .to_string();
+    Ok(TourOutcome { rows: tour_rows, files: vec![png], markdown })
 }
 
 #[cfg(test)]

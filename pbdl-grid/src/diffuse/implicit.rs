@@ -8,13 +8,10 @@
 
 use crate::advect::{Advected, Layout, Loc};
 use crate::boundary::Ghosts;
+use crate::laplacian_matrix::{unknown_index, Excluded, Factored, Laplacian, NOT_UNKNOWN};
 use crate::pad::pad;
 use crate::{Error, Grid, Result};
 use candle_core::{Shape, Tensor};
-use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::Llt;
-use faer::sparse::{SparseColMat, Triplet};
-use faer::{MatMut, Side};
 use pbdl_core::op::{apply1, apply_kernel1, Kernel1, Op1};
 use pbdl_core::Real;
 use std::sync::Arc;
@@ -23,10 +20,11 @@ use std::sync::Arc;
 struct System {
     /// Fixed value per cell (`None`: unknown).
     fixed: Vec<Option<f64>>,
-    /// Unknown index per cell (`usize::MAX` when fixed).
+    /// Unknown index per cell ([`NOT_UNKNOWN`] when fixed).
     index: Vec<usize>,
     free: usize,
-    llt: Llt<usize, f64>,
+    /// `I - alpha L` on the free cells, factored.
+    factor: Factored,
     /// `alpha L(z)` on the free cells, `z` = 0 plus the fixed values: the affine part.
     constant: Vec<f64>,
 }
@@ -128,62 +126,18 @@ fn fixed_cells(grid: &Grid, layout: &Layout, key: Option<bool>) -> Vec<Option<f6
 impl System {
     fn new(grid: &Grid, g: Ghosts, fixed: Vec<Option<f64>>, alpha: f64) -> Result<Self> {
         let (nx, ny) = (grid.nx, grid.ny);
-        let mut index = vec![usize::MAX; nx * ny];
-        let mut free = 0;
-        for (k, f) in fixed.iter().enumerate() {
-            if f.is_none() {
-                index[k] = free;
-                free += 1;
-            }
-        }
+        let (index, free) = unknown_index(nx * ny, |k| fixed[k].is_none());
+        let spec = Laplacian {
+            grid,
+            ghosts: g,
+            index: &index,
+            excluded: Excluded::KnownValue,
+            scale: alpha,
+            shift: 1.0,
+            pin_first: false,
+        };
+        let factor = Factored::new(&spec, false, "implicit diffusion", "")?;
         let (ax, ay) = (alpha / (grid.dx() * grid.dx()), alpha / (grid.dy() * grid.dy()));
-        let mut trip = Vec::with_capacity(5 * free);
-        let mut row: Vec<(usize, f64)> = Vec::with_capacity(6);
-        for j in 0..ny {
-            for i in 0..nx {
-                let me = j * nx + i;
-                if index[me] == usize::MAX {
-                    continue;
-                }
-                row.clear();
-                let mut add = |c: usize, v: f64| match row.iter_mut().find(|(k, _)| *k == c) {
-                    Some(e) => e.1 += v,
-                    None => row.push((c, v)),
-                };
-                add(me, 1.0);
-                let nb = [
-                    (i == 0, g.x_lo, me.wrapping_sub(1), ax, true),
-                    (i == nx - 1, g.x_hi, me + 1, ax, true),
-                    (j == 0, g.y_lo, me.wrapping_sub(nx), ay, false),
-                    (j == ny - 1, g.y_hi, me + nx, ay, false),
-                ];
-                for (at_edge, gh, inner, a, along_x) in nb {
-                    let (other, s) = if at_edge {
-                        (if along_x { j * nx + gh.src - 1 } else { (gh.src - 1) * nx + i }, gh.s)
-                    } else {
-                        (inner, 1.0)
-                    };
-                    add(me, a);
-                    // Fixed neighbours are constants (in `constant`), not matrix entries.
-                    if index[other] != usize::MAX {
-                        add(other, -s * a);
-                    }
-                }
-                for &(c, v) in &row {
-                    if v != 0.0 {
-                        trip.push(Triplet::new(index[me], index[c], v));
-                    }
-                }
-            }
-        }
-        let mat = SparseColMat::<usize, f64>::try_new_from_triplets(free, free, &trip).map_err(|e| Error::Solver {
-            solver: "implicit diffusion",
-            reason: format!("assembling the {free}x{free} matrix: {e:?}"),
-        })?;
-        let llt = mat.sp_cholesky(Side::Lower).map_err(|e| Error::Solver {
-            solver: "implicit diffusion",
-            reason: format!("factorisation failed: {e:?}"),
-        })?;
         // Affine part: alpha L applied to the fixed values and the ghost constants.
         let z: Vec<f64> = fixed.iter().map(|f| f.unwrap_or(0.0)).collect();
         let w = nx + 2;
@@ -193,7 +147,7 @@ impl System {
         for j in 0..ny {
             for i in 0..nx {
                 let me = j * nx + i;
-                if index[me] == usize::MAX {
+                if index[me] == NOT_UNKNOWN {
                     continue;
                 }
                 let c = (j + 1) * w + i + 1;
@@ -201,20 +155,20 @@ impl System {
                     ax * (zp[c - 1] + zp[c + 1] - 2.0 * zp[c]) + ay * (zp[c - w] + zp[c + w] - 2.0 * zp[c]);
             }
         }
-        Ok(Self { fixed, index, free, llt, constant })
+        Ok(Self { fixed, index, free, factor, constant })
     }
 
     /// Solves for one `ny x nx` slice; `adjoint`: no constants, fixed cells get 0.
     fn solve<T: Real>(&self, rhs: &[T], out: &mut [T], adjoint: bool) {
         let mut b = vec![0.0; self.free];
         for (k, &ix) in self.index.iter().enumerate() {
-            if ix != usize::MAX {
+            if ix != NOT_UNKNOWN {
                 b[ix] = rhs[k].to_f64() + if adjoint { 0.0 } else { self.constant[ix] };
             }
         }
-        self.llt.solve_in_place(MatMut::from_column_major_slice_mut(&mut b, self.free, 1));
+        self.factor.solve(&mut b);
         for (k, &ix) in self.index.iter().enumerate() {
-            out[k] = if ix != usize::MAX {
+            out[k] = if ix != NOT_UNKNOWN {
                 T::c(b[ix])
             } else if adjoint {
                 T::zero()

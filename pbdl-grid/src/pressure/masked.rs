@@ -11,15 +11,12 @@ use super::project::set_fixed;
 use crate::boundary::{Boundaries, Ghosts, MacGhosts};
 use crate::fd::{div_padded, div_padded_adjoint, grad_padded, grad_padded_adjoint};
 use crate::field::MacField;
+use crate::laplacian_matrix::{unknown_index, Excluded, Factored, Laplacian, NOT_UNKNOWN};
 use crate::obstacle::ObstacleMask;
 use crate::pad::{pad, pad_adjoint};
 use crate::scratch::zeros;
 use crate::{Error, Grid, Result};
 use candle_core::{Shape, Tensor};
-use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::Llt;
-use faer::sparse::{SparseColMat, Triplet};
-use faer::{MatMut, Side};
 use pbdl_core::op::{apply1, apply_kernel1, Kernel1, Op1};
 use pbdl_core::Real;
 use std::sync::Arc;
@@ -30,13 +27,13 @@ pub struct MaskedPressureSolver {
     bc: Boundaries,
     mac: MacGhosts,
     p: Ghosts,
-    /// Unknown index of each cell, `usize::MAX` for solid cells.
+    /// Unknown index of each cell, [`NOT_UNKNOWN`] for solid cells.
     index: Vec<usize>,
     fluid: usize,
-    pinned: bool,
     mu: Vec<f64>,
     mv: Vec<f64>,
-    llt: Llt<usize, f64>,
+    /// `-L_m` on the fluid cells, factored (first fluid cell pinned when singular).
+    poisson: Factored,
 }
 
 impl std::fmt::Debug for MaskedPressureSolver {
@@ -60,74 +57,20 @@ impl MaskedPressureSolver {
         let pbc = bc.pressure();
         let g = pbc.ghosts(nx, ny);
         let pinned = !pbc.has_dirichlet();
-        let mut index = vec![usize::MAX; nx * ny];
-        let mut fluid = 0;
-        for j in 0..ny {
-            for i in 0..nx {
-                if !mask.is_solid(j, i) {
-                    index[j * nx + i] = fluid;
-                    fluid += 1;
-                }
-            }
-        }
-        let (ax, ay) = (1.0 / (grid.dx() * grid.dx()), 1.0 / (grid.dy() * grid.dy()));
-        let off = usize::from(pinned);
-        let mut trip = Vec::with_capacity(5 * fluid);
-        let mut row: Vec<(usize, f64)> = Vec::with_capacity(6);
-        for j in 0..ny {
-            for i in 0..nx {
-                let me = j * nx + i;
-                if index[me] == usize::MAX {
-                    continue;
-                }
-                row.clear();
-                let mut add = |cell: usize, v: f64| match row.iter_mut().find(|(c, _)| *c == cell) {
-                    Some(e) => e.1 += v,
-                    None => row.push((cell, v)),
-                };
-                let nb = [
-                    (i == 0, g.x_lo, me.wrapping_sub(1), ax, true),
-                    (i == nx - 1, g.x_hi, me + 1, ax, true),
-                    (j == 0, g.y_lo, me.wrapping_sub(nx), ay, false),
-                    (j == ny - 1, g.y_hi, me + nx, ay, false),
-                ];
-                for (at_edge, gh, inner, a, along_x) in nb {
-                    // A face to a solid cell is closed: no flux, no entry.
-                    let (other, s) = if at_edge {
-                        (if along_x { j * nx + gh.src - 1 } else { (gh.src - 1) * nx + i }, gh.s)
-                    } else {
-                        (inner, 1.0)
-                    };
-                    if index[other] == usize::MAX {
-                        continue;
-                    }
-                    add(me, a);
-                    add(other, -s * a);
-                }
-                if pinned && index[me] == 0 {
-                    continue;
-                }
-                for &(c, v) in &row {
-                    let ci = index[c];
-                    if ci >= off && v != 0.0 {
-                        trip.push(Triplet::new(index[me] - off, ci - off, v));
-                    }
-                }
-            }
-        }
-        let m = fluid - off;
-        let mat = SparseColMat::<usize, f64>::try_new_from_triplets(m, m, &trip).map_err(|e| Error::Solver {
-            solver: "masked pressure cholesky",
-            reason: format!("assembling the {m}x{m} matrix: {e:?}"),
-        })?;
-        let llt = mat.sp_cholesky(Side::Lower).map_err(|e| Error::Solver {
-            solver: "masked pressure cholesky",
-            reason: format!(
-                "factorisation failed ({e:?}); is the fluid region connected and, with an outflow, connected to it?"
-            ),
-        })?;
+        let (index, fluid) = unknown_index(nx * ny, |k| !mask.is_solid(k / nx, k % nx));
+        let spec = Laplacian {
+            grid: &grid,
+            ghosts: g,
+            index: &index,
+            excluded: Excluded::ClosedFace,
+            scale: 1.0,
+            shift: 0.0,
+            pin_first: pinned,
+        };
+        let hint = "; is the fluid region connected and, with an outflow, connected to it?";
+        let poisson = Factored::new(&spec, true, "masked pressure cholesky", hint)?;
         let (mu, mv) = mask.face_masks(bc);
-        Ok(Arc::new(Self { grid, bc: *bc, mac: bc.mac_ghosts(nx, ny), p: g, index, fluid, pinned, mu, mv, llt }))
+        Ok(Arc::new(Self { grid, bc: *bc, mac: bc.mac_ghosts(nx, ny), p: g, index, fluid, mu, mv, poisson }))
     }
 
     /// The grid.
@@ -149,24 +92,13 @@ impl MaskedPressureSolver {
     fn solve_slice<T: Real>(&self, rhs: &[T], out: &mut [T]) {
         let mut b = vec![0.0; self.fluid];
         for (k, &ix) in self.index.iter().enumerate() {
-            if ix != usize::MAX {
+            if ix != NOT_UNKNOWN {
                 b[ix] = rhs[k].to_f64();
             }
         }
-        let n = self.fluid;
-        if self.pinned {
-            let mean = b.iter().sum::<f64>() / n as f64;
-            b.iter_mut().for_each(|x| *x = mean - *x);
-            b[0] = 0.0;
-            self.llt.solve_in_place(MatMut::from_column_major_slice_mut(&mut b[1..], n - 1, 1));
-            let mean = b.iter().sum::<f64>() / n as f64;
-            b.iter_mut().for_each(|x| *x -= mean);
-        } else {
-            b.iter_mut().for_each(|x| *x = -*x);
-            self.llt.solve_in_place(MatMut::from_column_major_slice_mut(&mut b, n, 1));
-        }
+        self.poisson.solve(&mut b);
         for (k, &ix) in self.index.iter().enumerate() {
-            out[k] = if ix == usize::MAX { T::zero() } else { T::c(b[ix]) };
+            out[k] = if ix == NOT_UNKNOWN { T::zero() } else { T::c(b[ix]) };
         }
     }
 
