@@ -157,8 +157,8 @@ impl std::fmt::Debug for Model {
 }
 
 impl Model {
-    /// A freshly initialised model (candle's default initialisers, seeded through the VarMap's
-    /// creation order; candle's CPU init is not seedable, so weights differ run to run).
+    /// A freshly initialised model (candle's default initialisers draw from an unseeded
+    /// generator, so initial weights differ run to run; training and sampling are seeded).
     pub fn new(config: ModelConfig) -> Result<Self> {
         config.validate()?;
         let varmap = VarMap::new();
