@@ -3,16 +3,33 @@
 //! published LSiM; smoke and shapes are kinds the metric never saw.
 //!
 //! ```text
-//! cargo run -p pbdl-metrics --example train_metric -- [--train 60] [--test 30] [--epochs 10]
-//!     [--width 1.0] [--res 64] [--lr 1e-4] [--gt linear|fit2] [--seed 0] [--no-lsim]
-//!     [--out target/metric-training] [--fit2-stats]
+//! cargo run -p pbdl-metrics --example train_metric -- [--train 60] [--test 30] [--epochs 40]
+//!     [--width 0.5] [--res 64] [--lr 1e-4] [--gt linear|fit2] [--seed 0] [--no-lsim]
+//!     [--out target/metric-training] [--fit2-stats] [--eval MODEL [--test-seed S]]
 //! ```
 //! Data are cached as `.npz` under `--out` (delete them to regenerate); the trained model is
 //! written there as a pbdl checkpoint, the per-step log as `train_log.csv`, the table as `table.md`.
 
-use pbdl_metrics::train::data::{load_sequences, Kind};
+use pbdl_metrics::train::data::{cached, generate, load_sequences, DataConfig, Kind};
 use pbdl_metrics::train::loss::fit2_coefficient;
+use pbdl_metrics::train::{evaluate, markdown_table, MetricNet, Scored};
 use pbdl_metrics::train::{run_experiment, ExperimentConfig, GroundTruth};
+
+/// `--eval MODEL [--test-seed S]`: scores a saved model on freshly generated (cached) test sets
+/// of seed `S`, next to L2 and SSIM, without training.
+fn eval_only(cfg: &ExperimentConfig, model: &str, seed: u64) -> Result<(), Box<dyn std::error::Error>> {
+    let net = MetricNet::load(model)?;
+    let dir = cfg.out_dir.clone().ok_or("no --out")?;
+    let mut sets = Vec::new();
+    for kind in Kind::ALL {
+        let path = dir.join(format!("{}_test_{}_{}_s{seed}.npz", kind.short(), cfg.test_per_kind, cfg.resolution));
+        let dc = DataConfig { resolution: cfg.resolution, seed };
+        sets.push((kind.short().to_string(), cached(path, || generate(kind, cfg.test_per_kind, &dc))?));
+    }
+    let rows = evaluate(&[Scored::L2, Scored::Ssim, Scored::Trained(&net)], &sets)?;
+    println!("test seed {seed}, model {model}\n\n{}", markdown_table(&rows));
+    Ok(())
+}
 
 /// `--fit2-stats`: the fitted "fit2" coefficients of the cached sequences in `--out`.
 fn fit2_stats(cfg: &ExperimentConfig) -> Result<(), Box<dyn std::error::Error>> {
@@ -61,6 +78,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("{cfg:?}");
     if args.iter().any(|a| a == "--fit2-stats") {
         return fit2_stats(&cfg);
+    }
+    if let Some(model) = args.iter().position(|a| a == "--eval").and_then(|i| args.get(i + 1)) {
+        return eval_only(&cfg, model, arg(&args, "--test-seed", cfg.seed + 1000));
     }
     let r = run_experiment(&cfg)?;
     let steps = cfg.epochs * r.train_sequences;
