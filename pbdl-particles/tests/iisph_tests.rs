@@ -179,3 +179,134 @@ fn iisph_density_error_follows_the_tolerance() {
     }
     assert!(errs[1] < 0.5 * errs[0], "{errs:?}");
 }
+
+/// The tour's run (`dam_break_iisph` in `tasks.rs`): T = 4 at dx = a/20, stopped at the Martin
+/// & Moyce times and every 0.1 in T. No fluid centre may be outside the tank at any frame.
+/// Before the impermeability condition 1 to 5 centres sat beyond the wall surface from T = 2.3
+/// on (6 at T = 4 in the tour): density-deficient particles (p = 0, spray sliding up the right
+/// wall, a broken-up bottom layer) feel no wall force, since their extrapolated wall pressure is
+/// 0 and a lone particle's summation density reaches ρ0 only about 0.25 dx behind the surface.
+/// The deepest crossing before a correction must stay below dx/2 (the first wall-particle
+/// layer): the wall particles, not the fallback, do the work.
+#[test]
+fn iisph_dam_break_to_t4_leaks_no_particle() {
+    let scene = DamBreak::default();
+    let mut sim = scene.build_iisph(IisphParams::default()).unwrap();
+    let mm = [1.212, 1.219, 1.602, 1.997, 2.283];
+    let mut stops: Vec<f64> = (1..=40).map(|k| 0.1 * k as f64).chain(mm).collect();
+    stops.sort_by(f64::total_cmp);
+    let mut worst = 0;
+    for big_t in stops {
+        sim.run_until(scene.physical_time(big_t)).unwrap();
+        worst = worst.max(sim.leaked());
+        assert_eq!(sim.leaked(), 0, "fluid centres outside the tank at T = {big_t}");
+    }
+    eprintln!(
+        "IISPH dam break to T = 4: {} steps, {} leaked (max over frames {worst}), {} wall corrections \
+         (particle x axis, of {} particle steps), deepest crossing before correction {:.3} dx, front Z = {:.3}",
+        sim.steps(),
+        sim.leaked(),
+        sim.wall_corrections(),
+        sim.steps() * sim.n_fluid() as u64,
+        sim.max_penetration() / sim.dx(),
+        sim.front() / scene.a
+    );
+    assert!(sim.max_penetration() < 0.5 * sim.dx(), "a particle crossed the first wall-particle layer");
+    assert!(sim.is_finite());
+}
+
+/// The standing column of `iisph_hydrostatic_column_pressure_within_ten_percent`.
+fn column() -> (DamBreak, pbdl_particles::Iisph) {
+    let scene = DamBreak { tank_width: 1.0, dx: 0.05, ..Default::default() };
+    let sim = scene.build_iisph(IisphParams::default()).unwrap();
+    (scene, sim)
+}
+
+/// Energy bound: no particle of a column at rest can be faster than free fall from the top,
+/// `sqrt(2 g H)`. Stopped every 0.1 s to t = 2 s as a user recording frames would: before the
+/// fix `run_until` took a sliver step (about 1e-13 s, rounding) near t = 1.9 s, whose pressure
+/// solve removed the 0.1% density error within it and threw particles at 1e8 sqrt(gH).
+#[test]
+fn iisph_column_stays_bounded_with_frequent_stops() {
+    let (scene, mut sim) = column();
+    let height = scene.height_ratio * scene.a;
+    let mut vmax = 0.0f64;
+    for k in 1..=20 {
+        sim.run_until(0.1 * k as f64).unwrap();
+        vmax = sim.v.iter().fold(vmax, |a, v| a.max((v[0] * v[0] + v[1] * v[1]).sqrt()));
+    }
+    let vmean = sim.v.iter().map(|v| (v[0] * v[0] + v[1] * v[1]).sqrt()).sum::<f64>() / sim.n_fluid() as f64;
+    eprintln!(
+        "column to t = 2 s with 20 stops: {} steps, max |v| {:.2e} sqrt(2gH), mean |v| at 2 s {:.2e} sqrt(gH)",
+        sim.steps(),
+        vmax / (2.0 * scene.g * height).sqrt(),
+        vmean / (scene.g * height).sqrt()
+    );
+    assert!(sim.is_finite());
+    assert!(vmax <= (2.0 * scene.g * height).sqrt(), "max speed {vmax} m/s");
+    assert_eq!(sim.leaked(), 0);
+}
+
+/// A step much shorter than the stable one changes velocities by no more than a full step
+/// does: the density error already present is removed over the stable step, not within the
+/// short one (before: 1e-12 s gave |Δv| of order 1e7 m/s).
+#[test]
+fn iisph_sliver_step_gives_no_velocity_spike() {
+    let (scene, mut sim) = column();
+    sim.run_until(0.2).unwrap();
+    let v0 = sim.v.clone();
+    sim.step(1e-12).unwrap();
+    let dv =
+        sim.v.iter().zip(&v0).fold(0.0f64, |a, (v, w)| a.max(((v[0] - w[0]).powi(2) + (v[1] - w[1]).powi(2)).sqrt()));
+    let full = {
+        let v1 = sim.v.clone();
+        sim.step(sim.stable_dt()).unwrap();
+        sim.v.iter().zip(&v1).fold(0.0f64, |a, (v, w)| a.max(((v[0] - w[0]).powi(2) + (v[1] - w[1]).powi(2)).sqrt()))
+    };
+    let sgh = (scene.g * scene.height_ratio * scene.a).sqrt();
+    eprintln!("max |dv|: {dv:.2e} m/s in a 1e-12 s step, {full:.2e} m/s in a stable step; sqrt(gH) = {sgh:.2} m/s");
+    assert!(dv <= 0.1 * sgh, "a 1e-12 s step changed a velocity by {dv} m/s");
+}
+
+/// Known failing (the drift is not fixed): a converged IISPH column at rest should stay at rest
+/// up to the solver tolerance; 0.5% of sqrt(gH) is the bound asked for. Measured 1.5% at
+/// t = 1 s, the same at tolerances 1e-3..1e-5 and dt 0.005 or 0.001 s (a mode of the discrete
+/// equations, not solver noise): vertical particle lines slide by about 0.3 dx, as a square
+/// lattice under load rearranges towards a staggered packing, which barely changes density.
+#[test]
+#[ignore = "known failing: mean speed 1.5% of sqrt(gH) at t = 1 s (bound 0.5%); about 1 s"]
+fn iisph_hydrostatic_column_mean_speed_below_half_percent() {
+    let (scene, mut sim) = column();
+    sim.run_until(1.0).unwrap();
+    let vmean = sim.v.iter().map(|v| (v[0] * v[0] + v[1] * v[1]).sqrt()).sum::<f64>() / sim.n_fluid() as f64;
+    let rel = vmean / (scene.g * scene.height_ratio * scene.a).sqrt();
+    eprintln!("hydrostatic column mean |v| at t = 1 s: {rel:.2e} sqrt(gH)");
+    assert!(rel <= 5e-3, "mean speed {rel} sqrt(gH)");
+}
+
+/// The stress run (`cargo xtask stress particles`): T = 10, stopped every 0.1. No fluid centre
+/// outside the tank, none past dx/2 before a correction, average compression <= 1%.
+#[test]
+#[ignore = "the stress horizon; about 2 s (8 s on a busy machine)"]
+fn iisph_dam_break_to_t10_leaks_no_particle() {
+    let scene = DamBreak::default();
+    let mut sim = scene.build_iisph(IisphParams::default()).unwrap();
+    let mut comp = 0.0f64;
+    for k in 1..=100 {
+        let big_t = 0.1 * k as f64;
+        sim.run_until(scene.physical_time(big_t)).unwrap();
+        comp = comp.max(sim.average_compression().unwrap());
+        assert_eq!(sim.leaked(), 0, "fluid centres outside the tank at T = {big_t}");
+    }
+    eprintln!(
+        "IISPH dam break to T = 10: {} steps, {} Jacobi iterations, average compression max {comp:.2e}, \
+         {} wall corrections, deepest crossing before correction {:.3} dx",
+        sim.steps(),
+        sim.total_iterations(),
+        sim.wall_corrections(),
+        sim.max_penetration() / sim.dx()
+    );
+    assert!(sim.is_finite());
+    assert!(comp <= 0.01, "average compression {comp}");
+    assert!(sim.max_penetration() < 0.5 * sim.dx(), "a particle crossed the first wall-particle layer");
+}
