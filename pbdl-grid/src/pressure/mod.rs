@@ -14,13 +14,18 @@
 //! * [`solve_poisson`]: `L^+ b` as a differentiable op.
 //! * [`MaskedPressureSolver`], [`make_incompressible_masked`]: the same with obstacles (solid
 //!   cells out of the solve, zero normal velocity on their faces).
+//! * [`CgPressureSolver`], [`make_incompressible_masked_cg`]: the same masked system by
+//!   preconditioned conjugate gradients (MIC(0) or Jacobi), warm-started, with a relative
+//!   tolerance; slower than the factor at 64^2-256^2 (see `benches/pressure.rs`).
 
+mod cg;
 mod cholesky;
 mod fft;
 mod masked;
 mod project;
 mod solver;
 
+pub use cg::{make_incompressible_masked_cg, CgPreconditioner, CgPressureSolver, CgSettings, CgStats};
 pub(crate) use masked::MaskedProjection;
 pub use masked::{make_incompressible_masked, MaskedPressureSolver};
 pub use project::make_incompressible;
