@@ -11,13 +11,10 @@ use pbdl_core::seed;
 use pbdl_metrics::classic::{ssim2d, SsimConfig};
 use pbdl_metrics::Lsim;
 use std::hint::black_box;
-use std::path::PathBuf;
 use std::time::Duration;
 
 fn bench_lsim(c: &mut Criterion) {
-    let dir = std::env::var_os(pbdl_metrics::weights::WEIGHTS_DIR_ENV)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/weights"));
+    let dir = pbdl_metrics::weights::weights_dir().unwrap_or_default();
     let lsim = match Lsim::load(dir.join(pbdl_metrics::weights::LSIM_FILE)) {
         Ok(l) => l,
         Err(e) => {

@@ -14,7 +14,6 @@ use pbdl_core::seed;
 use pbdl_metrics::volsim::VOLSIM_RESIZE;
 use pbdl_metrics::Volsim;
 use std::hint::black_box;
-use std::path::PathBuf;
 use std::time::Duration;
 
 fn bench_volsim(c: &mut Criterion) {
@@ -25,9 +24,7 @@ fn bench_volsim(c: &mut Criterion) {
     g.sample_size(10).measurement_time(Duration::from_secs(10));
     let x = s48.repeat((1, 3, 1, 1, 1)).unwrap().to_dtype(DType::F64).unwrap();
     g.bench_function("spline_zoom_48_to_64_3ch_f64", |b| b.iter(|| black_box(spline_zoom(&x, &[64, 64, 64]).unwrap())));
-    let dir = std::env::var_os(pbdl_metrics::weights::WEIGHTS_DIR_ENV)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/weights"));
+    let dir = pbdl_metrics::weights::weights_dir().unwrap_or_default();
     let v = match Volsim::load(dir.join(pbdl_metrics::weights::VOLSIM_FILE)) {
         Ok(v) => v,
         Err(e) => {

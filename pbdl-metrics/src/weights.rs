@@ -32,14 +32,15 @@ pub const LSIM_FILE: &str = "LSiM.safetensors";
 /// File name of the VolSiM weights (3-scale model).
 pub const VOLSIM_FILE: &str = "VolSiM_MS_3scales.safetensors";
 
-/// The weight directory: `$PBDL_WEIGHTS_DIR`, else `../shared/weights` if it exists; `None` if
-/// neither is there.
+/// The weight directory: `$PBDL_WEIGHTS_DIR`, else `../shared/weights` from the working
+/// directory, else the `shared/weights` folder beside this workspace's checkout (so tests,
+/// benches and examples find it whatever directory cargo runs them in); `None` if none is there.
 pub fn weights_dir() -> Option<PathBuf> {
     if let Some(dir) = std::env::var_os(WEIGHTS_DIR_ENV) {
         return Some(PathBuf::from(dir));
     }
-    let shared = PathBuf::from("../shared/weights");
-    shared.is_dir().then_some(shared)
+    let beside_checkout = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/weights");
+    [PathBuf::from("../shared/weights"), beside_checkout].into_iter().find(|d| d.is_dir())
 }
 
 /// The tensors and metadata of one weight file, taken out by name with shape checks.

@@ -116,16 +116,12 @@ fn files_with_unsupported_dtypes_or_layouts_are_typed_errors() {
 }
 
 fn volsim_path() -> Option<PathBuf> {
-    let p = match std::env::var_os(pbdl_metrics::weights::WEIGHTS_DIR_ENV) {
-        Some(d) => PathBuf::from(d),
-        None => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/weights"),
+    let p =
+        pbdl_metrics::weights::weights_dir().map(|d| d.join(pbdl_metrics::weights::VOLSIM_FILE)).filter(|p| p.exists());
+    if p.is_none() {
+        eprintln!("SKIPPED: VolSiM weights not found (set PBDL_WEIGHTS_DIR or put them in ../shared/weights)");
     }
-    .join(pbdl_metrics::weights::VOLSIM_FILE);
-    if !p.exists() {
-        eprintln!("SKIPPED: VolSiM weights not found at {} (set PBDL_WEIGHTS_DIR)", p.display());
-        return None;
-    }
-    Some(p)
+    p
 }
 
 /// Rewrites a safetensors file with `edit` applied to its tensors, keeping the metadata.

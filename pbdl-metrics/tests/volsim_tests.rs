@@ -7,22 +7,19 @@
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::{check_grad, seed, GradCheckOptions};
 use pbdl_metrics::{Error, NormScope, Volsim, VolsimOptions};
-use std::path::PathBuf;
 use std::sync::OnceLock;
 
 fn volsim() -> Option<&'static Volsim> {
     static MODEL: OnceLock<Option<Volsim>> = OnceLock::new();
     MODEL
         .get_or_init(|| {
-            let p = match std::env::var_os(pbdl_metrics::weights::WEIGHTS_DIR_ENV) {
-                Some(d) => PathBuf::from(d),
-                None => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/weights"),
-            }
-            .join(pbdl_metrics::weights::VOLSIM_FILE);
-            if !p.exists() {
-                eprintln!("SKIPPED: VolSiM weights not found at {} (set PBDL_WEIGHTS_DIR)", p.display());
+            let p = pbdl_metrics::weights::weights_dir()
+                .map(|d| d.join(pbdl_metrics::weights::VOLSIM_FILE))
+                .filter(|p| p.exists());
+            let Some(p) = p else {
+                eprintln!("SKIPPED: VolSiM weights not found (set PBDL_WEIGHTS_DIR or put them in ../shared/weights)");
                 return None;
-            }
+            };
             Some(Volsim::load(&p).expect("the shared VolSiM weights load"))
         })
         .as_ref()

@@ -259,13 +259,6 @@ fn floats_are_written_as_python_repr() {
     }
 }
 
-fn weights_dir() -> PathBuf {
-    match std::env::var_os(pbdl_metrics::weights::WEIGHTS_DIR_ENV) {
-        Some(d) => PathBuf::from(d),
-        None => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/weights"),
-    }
-}
-
 /// Environment variable naming a directory with the official `LSiM.pth` and `MS_3scales.pth`.
 const PTH_DIR_ENV: &str = "PBDL_PTH_DIR";
 
@@ -275,7 +268,10 @@ fn official_checkpoints_convert_bit_identically_to_the_reference_files() {
         eprintln!("SKIPPED: set {PTH_DIR_ENV} to a directory with LSiM.pth and MS_3scales.pth (see README)");
         return;
     };
-    let reference = weights_dir();
+    let Some(reference) = pbdl_metrics::weights::weights_dir() else {
+        eprintln!("SKIPPED: no reference weights (set PBDL_WEIGHTS_DIR or put them in ../shared/weights)");
+        return;
+    };
     for (input, want) in [("LSiM.pth", "LSiM.safetensors"), ("MS_3scales.pth", "VolSiM_MS_3scales.safetensors")] {
         let (input, want) = (pth.join(input), reference.join(want));
         if !want.exists() {

@@ -185,12 +185,8 @@ pub fn evaluate(
     })
 }
 
-/// The LSiM metric: `pbdl_metrics`' default location (`$PBDL_WEIGHTS_DIR` or `../shared/weights`
-/// from the working directory), else the `shared/weights` folder beside the workspace; `None`
-/// when the weights are nowhere (LSiM columns are then NaN).
+/// The LSiM metric from `pbdl_metrics`' default location ([`pbdl_metrics::weights::weights_dir`]);
+/// `None` when the weights are nowhere (LSiM columns are then NaN).
 pub fn load_lsim() -> Option<Lsim> {
-    Lsim::load_default().ok().or_else(|| {
-        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/weights/LSiM.safetensors");
-        Lsim::load(p).ok()
-    })
+    Lsim::load_default().ok()
 }
