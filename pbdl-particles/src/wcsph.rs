@@ -20,6 +20,7 @@
 use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
+use pbdl_core::Real;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -148,34 +149,44 @@ impl DamBreak {
         Ok(DamLayout { x, n_fluid, dx, height, domain, container: [[0.0, 0.0], [w, ht]] })
     }
 
-    /// Builds the particles and the stepper.
+    /// Builds the particles and the `f64` stepper.
     ///
     /// Errors: non-positive sizes, spacing or gravity, a column that does not fit the tank.
     pub fn build(&self, params: WcsphParams) -> Result<Wcsph> {
+        self.build_as::<f64>(params)
+    }
+
+    /// Builds the particles and the stepper in precision `T` (`f32` or `f64`); the layout and
+    /// the hydrostatic start are computed in `f64` and rounded once.
+    ///
+    /// Errors: as [`DamBreak::build`].
+    pub fn build_as<T: Real>(&self, params: WcsphParams) -> Result<Wcsph<T>> {
         let support = params.kernel.support_factor() * params.h_over_dx;
         let lay = self.layout(support, self.wall_layers)?;
         let c0 = self.c0_factor * (self.g * lay.height).sqrt();
         let b = self.rho0 * c0 * c0 / 7.0;
         let rho = (0..lay.x.len())
             .map(|i| {
-                if i < lay.n_fluid {
+                T::c(if i < lay.n_fluid {
                     // Hydrostatic start: p = ρ0 g (H - y), ρ from the inverse Tait law.
                     let pr = self.rho0 * self.g * (lay.height - lay.x[i][1]);
                     self.rho0 * (pr / b + 1.0).powf(1.0 / 7.0)
                 } else {
                     self.rho0
-                }
+                })
             })
             .collect();
         let dx = lay.dx;
+        let cast = |p: [f64; 2]| [T::c(p[0]), T::c(p[1])];
+        let domain = Domain { lo: cast(lay.domain.lo), hi: cast(lay.domain.hi), periodic: lay.domain.periodic };
         Wcsph::new(
             params,
             WcsphPhysics { rho0: self.rho0, c0, gravity: [0.0, -self.g], mass: self.rho0 * dx * dx, dx },
-            lay.x,
-            vec![[0.0; 2]; lay.n_fluid],
+            lay.x.into_iter().map(cast).collect(),
+            vec![[T::zero(); 2]; lay.n_fluid],
             rho,
             lay.n_fluid,
-            lay.domain,
+            domain,
             lay.container,
         )
     }
@@ -206,32 +217,36 @@ pub struct WcsphPhysics {
     pub dx: f64,
 }
 
-/// The 2D WCSPH state and stepper. Fluid particles come first, fixed wall particles after.
+/// The 2D WCSPH state and stepper, in `f64` (default) or `f32`. Fluid particles come first,
+/// fixed wall particles after. Parameters, time and the step size stay `f64`; the particle
+/// state and all per-particle arithmetic are in `T`.
 #[derive(Clone, Debug)]
-pub struct Wcsph {
+pub struct Wcsph<T: Real = f64> {
     params: WcsphParams,
     phys: WcsphPhysics,
-    kernel: Kernel<f64>,
+    kernel: Kernel<T>,
     /// Positions (fluid, then walls).
-    pub x: Vec<[f64; 2]>,
+    pub x: Vec<[T; 2]>,
     /// Fluid velocities.
-    pub v: Vec<[f64; 2]>,
+    pub v: Vec<[T; 2]>,
     /// Densities (fluid evolved, walls extrapolated).
-    pub rho: Vec<f64>,
+    pub rho: Vec<T>,
     /// Pressures.
-    pub p: Vec<f64>,
-    acc: Vec<[f64; 2]>,
-    drho: Vec<f64>,
+    pub p: Vec<T>,
+    acc: Vec<[T; 2]>,
+    drho: Vec<T>,
+    v_half: Vec<[T; 2]>,
+    rho_half: Vec<T>,
     n_fluid: usize,
     container: [[f64; 2]; 2],
-    cells: CellList<f64, 2>,
+    cells: CellList<T, 2>,
     nl: NeighborList,
     time: f64,
     steps: u64,
     max_acc: f64,
 }
 
-impl Wcsph {
+impl<T: Real> Wcsph<T> {
     /// A stepper from particle arrays (`v` for the fluid only) inside `domain` (the search box);
     /// `container` is the box the fluid must stay in (for [`Wcsph::leaked`]).
     ///
@@ -239,11 +254,11 @@ impl Wcsph {
     pub fn new(
         params: WcsphParams,
         phys: WcsphPhysics,
-        x: Vec<[f64; 2]>,
-        v: Vec<[f64; 2]>,
-        rho: Vec<f64>,
+        x: Vec<[T; 2]>,
+        v: Vec<[T; 2]>,
+        rho: Vec<T>,
         n_fluid: usize,
-        domain: Domain<f64, 2>,
+        domain: Domain<T, 2>,
         container: [[f64; 2]; 2],
     ) -> Result<Self> {
         let n = x.len();
@@ -253,8 +268,8 @@ impl Wcsph {
         if rho.len() != n {
             return Err(Error::Length { op: "Wcsph::new", arg: "rho", expected: n, got: rho.len() });
         }
-        if let Some(i) = rho.iter().position(|r| !(*r > 0.0 && r.is_finite())) {
-            return Err(Error::invalid("rho", format!("particle {i} has density {}", rho[i])));
+        if let Some(i) = rho.iter().position(|r| !(*r > T::zero() && r.is_finite())) {
+            return Err(Error::invalid("rho", format!("particle {i} has density {:?}", rho[i])));
         }
         if !(phys.mass > 0.0 && phys.c0 > 0.0 && phys.rho0 > 0.0 && phys.dx > 0.0) {
             return Err(Error::invalid("physics", format!("{phys:?}; mass, c0, rho0 and dx must be positive")));
@@ -278,20 +293,22 @@ impl Wcsph {
         if let Some(i) = x.iter().position(|p| !(0..2).all(|d| p[d] >= domain.lo[d] && p[d] <= domain.hi[d])) {
             return Err(Error::OutsideDomain {
                 index: i,
-                position: x[i].to_vec(),
-                lo: domain.lo.to_vec(),
-                hi: domain.hi.to_vec(),
+                position: x[i].iter().map(|c| to64(*c)).collect(),
+                lo: domain.lo.iter().map(|c| to64(*c)).collect(),
+                hi: domain.hi.iter().map(|c| to64(*c)).collect(),
             });
         }
-        let kernel = Kernel::new(params.kernel, 2, params.h_over_dx * phys.dx)?;
+        let kernel = Kernel::new(params.kernel, 2, T::c(params.h_over_dx * phys.dx))?;
         let cells = CellList::new(domain, kernel.support())?;
         let mut s = Wcsph {
             params,
             phys,
             kernel,
-            p: vec![0.0; n],
-            acc: vec![[0.0; 2]; n_fluid],
-            drho: vec![0.0; n_fluid],
+            p: vec![T::zero(); n],
+            acc: vec![[T::zero(); 2]; n_fluid],
+            drho: vec![T::zero(); n_fluid],
+            v_half: Vec::with_capacity(n_fluid),
+            rho_half: Vec::with_capacity(n_fluid),
             x,
             v,
             rho,
@@ -339,14 +356,14 @@ impl Wcsph {
     }
 
     /// The search domain (periodic or bounded).
-    pub fn domain(&self) -> &Domain<f64, 2> {
+    pub fn domain(&self) -> &Domain<T, 2> {
         self.cells.domain()
     }
 
-    /// Total linear momentum of the fluid (all particles have the same mass).
+    /// Total linear momentum of the fluid (all particles have the same mass), summed in `f64`.
     pub fn momentum(&self) -> [f64; 2] {
         let m = self.phys.mass;
-        self.v.iter().fold([0.0; 2], |a, v| [a[0] + m * v[0], a[1] + m * v[1]])
+        self.v.iter().fold([0.0; 2], |a, v| [a[0] + m * to64(v[0]), a[1] + m * to64(v[1])])
     }
 
     /// Simulated time.
@@ -377,19 +394,21 @@ impl Wcsph {
         let nf = self.n_fluid;
         let n = self.x.len();
         self.cells.neighbors(&self.x, &mut self.nl)?;
-        let (rho0, b) = (self.phys.rho0, self.b());
+        let (rho0, b) = (T::c(self.phys.rho0), T::c(self.b()));
+        let (zero, one, seventh) = (T::zero(), T::one(), T::c(1.0 / 7.0));
         for i in 0..nf {
             let r = self.rho[i] / rho0;
-            self.p[i] = b * (r.powi(7) - 1.0);
+            self.p[i] = b * (r.powi(7) - one);
         }
         // Wall pressure and density extrapolated from the fluid (Adami et al. 2012).
         let dom = *self.cells.domain();
-        let (x, rho, nl, k, g) = (&self.x, &self.rho, &self.nl, &self.kernel, self.phys.gravity);
+        let g = [T::c(self.phys.gravity[0]), T::c(self.phys.gravity[1])];
+        let (x, rho, nl, k) = (&self.x, &self.rho, &self.nl, &self.kernel);
         let (p_fluid, p_wall) = self.p.split_at_mut(nf);
-        let wall_state: Vec<(f64, f64)> = (nf..n)
+        let wall_state: Vec<(T, T)> = (nf..n)
             .into_par_iter()
             .map(|w| {
-                let (mut sw, mut sp) = (0.0, 0.0);
+                let (mut sw, mut sp) = (zero, zero);
                 for &f in nl.neighbors(w) {
                     let f = f as usize;
                     if f >= nf {
@@ -400,8 +419,19 @@ impl Wcsph {
                     sw += wk;
                     sp += (p_fluid[f] + rho[f] * (g[0] * d[0] + g[1] * d[1])) * wk;
                 }
-                let pw = if sw > 0.0 { (sp / sw).max(0.0) } else { 0.0 };
-                (pw, rho0 * (pw / b + 1.0).powf(1.0 / 7.0))
+                let pw = if sw > zero {
+                    {
+                        let pw = sp / sw;
+                        if pw > zero {
+                            pw
+                        } else {
+                            zero
+                        }
+                    }
+                } else {
+                    zero
+                };
+                (pw, rho0 * (pw / b + one).powf(seventh))
             })
             .collect();
         for (k, (pw, rw)) in wall_state.into_iter().enumerate() {
@@ -410,45 +440,48 @@ impl Wcsph {
         }
         // Fluid accelerations and density rates.
         let (x, v, rho, p, nl, k) = (&self.x, &self.v, &self.rho, &self.p, &self.nl, &self.kernel);
-        let (m, h, c0, alpha, delta, g) =
-            (self.phys.mass, k.h(), self.phys.c0, self.params.alpha, self.params.delta, self.phys.gravity);
-        let eps = 0.01 * h * h;
-        let has_gravity = g != [0.0, 0.0];
+        let h = k.h();
+        let (m, c0, alpha, delta) =
+            (T::c(self.phys.mass), T::c(self.phys.c0), T::c(self.params.alpha), T::c(self.params.delta));
+        let (half, two) = (T::c(0.5), T::c(2.0));
+        let eps = T::c(0.01) * h * h;
+        let has_gravity = self.phys.gravity != [0.0, 0.0];
+        let (use_visc, use_delta) = (self.params.alpha > 0.0, self.params.delta > 0.0);
         self.acc.par_iter_mut().zip(self.drho.par_iter_mut()).enumerate().for_each(|(i, (a, dr))| {
-            let (mut ax, mut ay, mut d) = (0.0, 0.0, 0.0);
+            let (mut ax, mut ay, mut d) = (zero, zero, zero);
             let pi = p[i] / (rho[i] * rho[i]);
             for &j in nl.neighbors(i) {
                 let j = j as usize;
                 let dx = dom.displacement(&x[j], &x[i]);
                 let r2 = dx[0] * dx[0] + dx[1] * dx[1];
-                if r2 <= 0.0 {
+                if r2 <= zero {
                     continue;
                 }
                 let r = r2.sqrt();
                 let s = k.dw_dr(r) / r;
                 let gw = [s * dx[0], s * dx[1]];
-                let vj = if j < nf { v[j] } else { [0.0, 0.0] };
+                let vj = if j < nf { v[j] } else { [zero, zero] };
                 let vij = [v[i][0] - vj[0], v[i][1] - vj[1]];
                 let vx = vij[0] * dx[0] + vij[1] * dx[1];
-                let mut visc = 0.0;
-                if vx < 0.0 && alpha > 0.0 {
+                let mut visc = zero;
+                if vx < zero && use_visc {
                     let mu = vx / (r2 + eps);
-                    visc = -alpha * h * c0 * mu / (0.5 * (rho[i] + rho[j]));
+                    visc = -alpha * h * c0 * mu / (half * (rho[i] + rho[j]));
                 }
                 let f = m * (pi + p[j] / (rho[j] * rho[j]) + visc);
                 ax -= f * gw[0];
                 ay -= f * gw[1];
                 d += m * (vij[0] * gw[0] + vij[1] * gw[1]);
-                if delta > 0.0 && j < nf {
+                if use_delta && j < nf {
                     // ψ_ij·∇W with x_ji = -dx.
-                    let psi = 2.0 * (rho[j] - rho[i]) / (r2 + eps);
+                    let psi = two * (rho[j] - rho[i]) / (r2 + eps);
                     d += delta * h * c0 * (m / rho[j]) * psi * (-(dx[0] * gw[0] + dx[1] * gw[1]));
                 }
             }
             *a = if has_gravity { [ax + g[0], ay + g[1]] } else { [ax, ay] };
             *dr = d;
         });
-        self.max_acc = self.acc.iter().fold(0.0f64, |acc, a| acc.max((a[0] * a[0] + a[1] * a[1]).sqrt()));
+        self.max_acc = self.acc.iter().fold(0.0f64, |acc, a| acc.max(to64((a[0] * a[0] + a[1] * a[1]).sqrt())));
         if let Some(i) =
             (0..nf).find(|&i| !(self.acc[i][0].is_finite() && self.acc[i][1].is_finite() && self.drho[i].is_finite()))
         {
@@ -459,8 +492,8 @@ impl Wcsph {
 
     /// The stable time step and the criterion that sets it.
     pub fn stable_dt(&self) -> (f64, &'static str) {
-        let h = self.kernel.h();
-        let vmax = self.v.iter().fold(0.0f64, |a, v| a.max((v[0] * v[0] + v[1] * v[1]).sqrt()));
+        let h = to64(self.kernel.h());
+        let vmax = self.v.iter().fold(0.0f64, |a, v| a.max(to64((v[0] * v[0] + v[1] * v[1]).sqrt())));
         let cfl = self.params.cfl * h / (self.phys.c0 + vmax);
         let force = if self.max_acc > 0.0 { 0.25 * (h / self.max_acc).sqrt() } else { f64::INFINITY };
         let nu = self.params.alpha * h * self.phys.c0 / 8.0;
@@ -485,18 +518,18 @@ impl Wcsph {
             return Err(Error::UnstableTimeStep { dt, limit, criterion });
         }
         let nf = self.n_fluid;
-        let half = 0.5 * dt;
+        let (dt_t, half) = (T::c(dt), T::c(0.5 * dt));
         let (x, v, rho, acc, drho) = (&mut self.x, &mut self.v, &mut self.rho, &self.acc, &self.drho);
-        let mut v_half = Vec::with_capacity(nf);
-        let mut rho_half = Vec::with_capacity(nf);
+        self.v_half.clear();
+        self.rho_half.clear();
         for i in 0..nf {
             for d in 0..2 {
                 v[i][d] += half * acc[i][d];
-                x[i][d] += dt * v[i][d];
+                x[i][d] += dt_t * v[i][d];
             }
             rho[i] += half * drho[i];
-            v_half.push(v[i]);
-            rho_half.push(rho[i]);
+            self.v_half.push(v[i]);
+            self.rho_half.push(rho[i]);
             for d in 0..2 {
                 v[i][d] += half * acc[i][d];
             }
@@ -511,9 +544,9 @@ impl Wcsph {
         self.evaluate()?;
         for i in 0..nf {
             for d in 0..2 {
-                self.v[i][d] = v_half[i][d] + half * self.acc[i][d];
+                self.v[i][d] = self.v_half[i][d] + half * self.acc[i][d];
             }
-            self.rho[i] = rho_half[i] + half * self.drho[i];
+            self.rho[i] = self.rho_half[i] + half * self.drho[i];
         }
         self.time += dt;
         self.steps += 1;
@@ -532,7 +565,7 @@ impl Wcsph {
 
     /// The largest x of any fluid particle (the surge front).
     pub fn front(&self) -> f64 {
-        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(p[0]))
+        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(to64(p[0])))
     }
 
     /// Fluid particles outside the container (or non-finite).
@@ -540,6 +573,7 @@ impl Wcsph {
         let [lo, hi] = self.container;
         self.x[..self.n_fluid]
             .iter()
+            .map(|p| [to64(p[0]), to64(p[1])])
             .filter(|p| !(p[0] >= lo[0] && p[0] <= hi[0] && p[1] >= lo[1] && p[1] <= hi[1]))
             .count()
     }
@@ -550,8 +584,14 @@ impl Wcsph {
             .all(|i| self.x[i].iter().chain(self.v[i].iter()).all(|c| c.is_finite()) && self.rho[i].is_finite())
     }
 
-    /// Mean `|ρ/ρ0 - 1|` over the fluid.
+    /// Mean `|ρ/ρ0 - 1|` over the fluid, summed in `f64`.
     pub fn mean_density_error(&self) -> f64 {
-        self.rho[..self.n_fluid].iter().map(|r| (r / self.phys.rho0 - 1.0).abs()).sum::<f64>() / self.n_fluid as f64
+        self.rho[..self.n_fluid].iter().map(|r| (to64(*r) / self.phys.rho0 - 1.0).abs()).sum::<f64>()
+            / self.n_fluid as f64
     }
+}
+
+/// `T` to `f64` for diagnostics (exact for `f32` and `f64`).
+fn to64<T: Real>(v: T) -> f64 {
+    candle_core::WithDType::to_f64(v)
 }
