@@ -42,11 +42,24 @@
 //! The particle mass is `m = ρ0 / Σ_k W(|x_k|)` over the particle lattice, so that a particle
 //! with full support at rest has exactly `ρ0` (the volume definition of Akinci et al. 2012 for
 //! a uniform lattice); wall particles have the same mass.
+//!
+//! Precision: [`Iisph<T>`] keeps the particle state (positions, velocities, densities,
+//! pressures) and does all per-particle arithmetic, the Jacobi iteration included, in `T`
+//! (`f64` by default, or `f32`). Parameters, constants (`ρ0`, `dx`, mass, gravity), time and
+//! the step size stay `f64`; the solver's average density error and the diagnostics sum in
+//! `f64`. `f32` reaches the default tolerance of 1e-3 as `f64` does, in the same number of
+//! iterations: the residual is a difference of density changes (of order `tolerance · ρ0`), so
+//! its `f32` round-off is far below any useful tolerance (a dam break to T = 0.5 converged down
+//! to 1e-7, 38431 iterations against 38641 in `f64`). The summation density itself carries
+//! about 1e-7 relative round-off in `f32`, so tolerances below about 1e-6 buy nothing there
+//! (numbers in `tests/precision_tests.rs`).
 
 use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
+use crate::sph1d::{tmax, tmin, wide};
 use crate::wcsph::DamBreak;
+use pbdl_core::Real;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -130,28 +143,29 @@ pub struct SolveStats {
     pub density_error: f64,
 }
 
-/// The 2D IISPH state and stepper. Fluid particles come first, fixed wall particles after.
+/// The 2D IISPH state and stepper, in `f64` (default) or `f32` (see the module docs). Fluid
+/// particles come first, fixed wall particles after.
 #[derive(Clone, Debug)]
-pub struct Iisph {
+pub struct Iisph<T: Real = f64> {
     params: IisphParams,
-    kernel: Kernel<f64>,
+    kernel: Kernel<T>,
     rho0: f64,
     mass: f64,
     dx: f64,
     gravity: [f64; 2],
     /// Positions (fluid, then walls).
-    pub x: Vec<[f64; 2]>,
+    pub x: Vec<[T; 2]>,
     /// Fluid velocities.
-    pub v: Vec<[f64; 2]>,
+    pub v: Vec<[T; 2]>,
     /// Fluid summation densities (at the start of the last step).
-    pub rho: Vec<f64>,
+    pub rho: Vec<T>,
     /// Fluid pressures (of the last step).
-    pub p: Vec<f64>,
+    pub p: Vec<T>,
     n_fluid: usize,
     container: [[f64; 2]; 2],
-    cells: CellList<f64, 2>,
+    cells: CellList<T, 2>,
     nl: NeighborList,
-    grads: Vec<[f64; 2]>,
+    grads: Vec<[T; 2]>,
     time: f64,
     steps: u64,
     stats: SolveStats,
@@ -165,9 +179,10 @@ pub struct Iisph {
     warm: f64,
 }
 
-impl Iisph {
+impl<T: Real> Iisph<T> {
     /// A stepper from particle arrays (`v` for the fluid only, walls after the fluid) in the
-    /// search box `domain`; `container` is the box the fluid must stay in.
+    /// search box `domain`; `container` is the box the fluid must stay in. The precision `T`
+    /// is that of the arrays.
     ///
     /// Errors: mismatched lengths, particles outside `domain`, bad parameters or constants.
     pub fn new(
@@ -175,10 +190,10 @@ impl Iisph {
         rho0: f64,
         dx: f64,
         gravity: [f64; 2],
-        x: Vec<[f64; 2]>,
-        v: Vec<[f64; 2]>,
+        x: Vec<[T; 2]>,
+        v: Vec<[T; 2]>,
         n_fluid: usize,
-        domain: Domain<f64, 2>,
+        domain: Domain<T, 2>,
         container: [[f64; 2]; 2],
     ) -> Result<Self> {
         params.validate()?;
@@ -195,18 +210,19 @@ impl Iisph {
         if let Some(i) = x.iter().position(|p| !(0..2).all(|d| p[d] >= domain.lo[d] && p[d] <= domain.hi[d])) {
             return Err(Error::OutsideDomain {
                 index: i,
-                position: x[i].to_vec(),
-                lo: domain.lo.to_vec(),
-                hi: domain.hi.to_vec(),
+                position: x[i].map(wide).to_vec(),
+                lo: domain.lo.map(wide).to_vec(),
+                hi: domain.hi.map(wide).to_vec(),
             });
         }
-        let kernel = Kernel::new(params.kernel, 2, params.h_over_dx * dx)?;
-        // Lattice sum of W: m = ρ0 / Σ W gives ρ = ρ0 for full support at rest.
-        let reach = (kernel.support() / dx).ceil() as i64 + 1;
+        let kernel = Kernel::<T>::new(params.kernel, 2, T::c(params.h_over_dx * dx))?;
+        // Lattice sum of W (in f64): m = ρ0 / Σ W gives ρ = ρ0 for full support at rest.
+        let k64 = Kernel::<f64>::new(params.kernel, 2, params.h_over_dx * dx)?;
+        let reach = (k64.support() / dx).ceil() as i64 + 1;
         let mut wsum = 0.0;
         for j in -reach..=reach {
             for i in -reach..=reach {
-                wsum += kernel.w(((i * i + j * j) as f64).sqrt() * dx);
+                wsum += k64.w(((i * i + j * j) as f64).sqrt() * dx);
             }
         }
         let cells = CellList::new(domain, kernel.support())?;
@@ -217,8 +233,8 @@ impl Iisph {
             mass: rho0 / wsum,
             dx,
             gravity,
-            rho: vec![rho0; n_fluid],
-            p: vec![0.0; n_fluid],
+            rho: vec![T::c(rho0); n_fluid],
+            p: vec![T::zero(); n_fluid],
             x,
             v,
             n_fluid,
@@ -279,7 +295,7 @@ impl Iisph {
     /// Sets the fluid pressures used as the first step's initial guess (e.g. hydrostatic).
     ///
     /// Errors: a length other than the fluid count, negative or non-finite values.
-    pub fn set_initial_pressure(&mut self, p: Vec<f64>) -> Result<()> {
+    pub fn set_initial_pressure(&mut self, p: Vec<T>) -> Result<()> {
         if p.len() != self.n_fluid {
             return Err(Error::Length {
                 op: "Iisph::set_initial_pressure",
@@ -288,8 +304,8 @@ impl Iisph {
                 got: p.len(),
             });
         }
-        if let Some(i) = p.iter().position(|v| !(*v >= 0.0 && v.is_finite())) {
-            return Err(Error::invalid("p", format!("particle {i} has pressure {}", p[i])));
+        if let Some(i) = p.iter().position(|v| !(*v >= T::zero() && v.is_finite())) {
+            return Err(Error::invalid("p", format!("particle {i} has pressure {}", wide(p[i]))));
         }
         self.p = p;
         self.warm = 1.0;
@@ -325,7 +341,7 @@ impl Iisph {
 
     /// The stable step: `min(cfl dx / |v|max, cfl sqrt(dx / |g|), dt_max)`.
     pub fn stable_dt(&self) -> f64 {
-        let vmax = self.v.iter().fold(0.0f64, |a, v| a.max((v[0] * v[0] + v[1] * v[1]).sqrt()));
+        let vmax = self.v.iter().fold(0.0f64, |a, v| a.max(wide((v[0] * v[0] + v[1] * v[1]).sqrt())));
         let g = (self.gravity[0].powi(2) + self.gravity[1].powi(2)).sqrt();
         let mut dt = self.params.dt_max;
         if vmax > 0.0 {
@@ -337,7 +353,8 @@ impl Iisph {
         dt
     }
 
-    /// One IISPH step of size `dt`.
+    /// One IISPH step of size `dt` (rounded to `T` for the update; time advances by `dt` in
+    /// `f64`).
     ///
     /// Errors: [`Error::UnstableTimeStep`] when `dt` exceeds [`Iisph::stable_dt`],
     /// [`Error::SolverNotConverged`] when the pressure solve does not reach the tolerance
@@ -349,15 +366,17 @@ impl Iisph {
         }
         let nf = self.n_fluid;
         self.cells.neighbors(&self.x, &mut self.nl)?;
-        let (m, rho0, k) = (self.mass, self.rho0, self.kernel);
+        let c = T::c;
+        let zero = T::zero();
+        let (m, rho0, k) = (c(self.mass), c(self.rho0), self.kernel);
         let h = k.h();
         let (x, nl) = (&self.x, &self.nl);
         // Kernel gradients per neighbour entry (fluid rows only), and densities.
         let end = nl.offsets[nf];
-        self.grads.resize(end, [0.0; 2]);
+        self.grads.resize(end, [zero; 2]);
         let rows: Vec<(usize, usize)> = (0..nf).map(|i| (nl.offsets[i], nl.offsets[i + 1])).collect();
         {
-            let mut rest: &mut [[f64; 2]] = &mut self.grads[..end];
+            let mut rest: &mut [[T; 2]] = &mut self.grads[..end];
             let mut slices = Vec::with_capacity(nf);
             for &(a, b) in &rows {
                 let (head, tail) = rest.split_at_mut(b - a);
@@ -366,14 +385,14 @@ impl Iisph {
             }
             let rho = &mut self.rho;
             slices.into_par_iter().zip(rho.par_iter_mut()).enumerate().for_each(|(i, (g, r))| {
-                let mut sum = m * k.w(0.0);
+                let mut sum = m * k.w(zero);
                 for (gij, &j) in g.iter_mut().zip(nl.neighbors(i)) {
                     let j = j as usize;
                     let d = [x[i][0] - x[j][0], x[i][1] - x[j][1]];
                     let rr = (d[0] * d[0] + d[1] * d[1]).sqrt();
                     let (w, dw) = k.w_dw(rr);
                     sum += m * w;
-                    *gij = if rr > 0.0 { [dw / rr * d[0], dw / rr * d[1]] } else { [0.0; 2] };
+                    *gij = if rr > zero { [dw / rr * d[0], dw / rr * d[1]] } else { [zero; 2] };
                 }
                 *r = sum;
             });
@@ -381,24 +400,25 @@ impl Iisph {
         let (rho, grads, v) = (&self.rho, &self.grads, &self.v);
         let grad_row = |i: usize| &grads[nl.offsets[i]..nl.offsets[i + 1]];
         // Non-pressure forces -> advected velocity.
-        let (g, nu, eps) = (self.gravity, self.params.nu, 0.01 * h * h);
-        let v_adv: Vec<[f64; 2]> = (0..nf)
+        let (g, nu, eps) = (self.gravity.map(c), c(self.params.nu), c(0.01) * h * h);
+        let (dt_t, viscous) = (c(dt), self.params.nu > 0.0);
+        let v_adv: Vec<[T; 2]> = (0..nf)
             .into_par_iter()
             .map(|i| {
                 let mut a = g;
-                if nu > 0.0 {
+                if viscous {
                     for (gw, &j) in grad_row(i).iter().zip(nl.neighbors(i)) {
                         let j = j as usize;
-                        let vj = if j < nf { v[j] } else { [0.0; 2] };
+                        let vj = if j < nf { v[j] } else { [zero; 2] };
                         let rj = if j < nf { rho[j] } else { rho0 };
                         let d = [x[i][0] - x[j][0], x[i][1] - x[j][1]];
                         let vx = (v[i][0] - vj[0]) * d[0] + (v[i][1] - vj[1]) * d[1];
-                        let c = 8.0 * nu * (m / rj) * vx / (d[0] * d[0] + d[1] * d[1] + eps);
-                        a[0] += c * gw[0];
-                        a[1] += c * gw[1];
+                        let cv = c(8.0) * nu * (m / rj) * vx / (d[0] * d[0] + d[1] * d[1] + eps);
+                        a[0] += cv * gw[0];
+                        a[1] += cv * gw[1];
                     }
                 }
-                [v[i][0] + dt * a[0], v[i][1] + dt * a[1]]
+                [v[i][0] + dt_t * a[0], v[i][1] + dt_t * a[1]]
             })
             .collect();
         // Source term s_i = ρ0 - ρ*_i and diagonal a_ii. The density error already present
@@ -406,19 +426,19 @@ impl Iisph {
         // step dt it would need velocities ~ (ρ0 - ρ_i)/ρ0 dx/dt (a 1e-13 s step after rounding
         // in `run_until` blew a water column at rest up to 1e8 sqrt(gH)).
         let relax = (dt / limit).min(1.0);
-        let dt2 = dt * dt;
-        let (src, diag): (Vec<f64>, Vec<f64>) = (0..nf)
+        let (relax_t, dt2) = (c(relax), c(dt * dt));
+        let (src, diag): (Vec<T>, Vec<T>) = (0..nf)
             .into_par_iter()
             .map(|i| {
                 // sg = Σ_all m ∇W, sp = Σ_fluid m ∇W + 2 Σ_wall m ∇W (p_i's weight in a^p_i).
-                let (mut div, mut sg, mut sp, mut sg2) = (0.0, [0.0; 2], [0.0; 2], 0.0);
+                let (mut div, mut sg, mut sp, mut sg2) = (zero, [zero; 2], [zero; 2], zero);
                 for (gw, &j) in grad_row(i).iter().zip(nl.neighbors(i)) {
                     let j = j as usize;
-                    let vj = if j < nf { v_adv[j] } else { [0.0; 2] };
+                    let vj = if j < nf { v_adv[j] } else { [zero; 2] };
                     div += m * ((v_adv[i][0] - vj[0]) * gw[0] + (v_adv[i][1] - vj[1]) * gw[1]);
                     sg[0] += m * gw[0];
                     sg[1] += m * gw[1];
-                    let w = if j < nf { 1.0 } else { 2.0 };
+                    let w = if j < nf { T::one() } else { c(2.0) };
                     sp[0] += w * m * gw[0];
                     sp[1] += w * m * gw[1];
                     if j < nf {
@@ -429,22 +449,22 @@ impl Iisph {
                 // a_ii: p_i's coefficient in (Ap)_i = dt² Σ_f m (a^p_i - a^p_j)·∇W + dt² Σ_b m a^p_i·∇W,
                 // with a^p_i ∋ -p_i/ρ_i² sp and a^p_j ∋ +m p_i/ρ_i² ∇W_ij.
                 let aii = -dt2 / ri2 * (sp[0] * sg[0] + sp[1] * sg[1]) - dt2 * m / ri2 * sg2;
-                (relax * (rho0 - rho[i]) - dt * div, aii)
+                (relax_t * (rho0 - rho[i]) - dt_t * div, aii)
             })
             .unzip();
         // Relaxed Jacobi.
-        let omega = self.params.omega;
-        let warm = self.warm;
-        let mut p: Vec<f64> = self.p.iter().map(|&pi| warm * pi).collect();
-        let mut ap = vec![[0.0; 2]; nf];
+        let omega = c(self.params.omega);
+        let warm = c(self.warm);
+        let mut p: Vec<T> = self.p.iter().map(|&pi| warm * pi).collect();
+        let mut ap = vec![[zero; 2]; nf];
         // Wall pressures extrapolated from the fluid (Adami et al. 2012; Band et al. 2018 for
         // IISPH): p_b = Σ_f (p_f + ρ_f g·(x_b - x_f)) W_bf / Σ_f W_bf, clamped at 0.
         let n_all = x.len();
-        let wall_pressure = |p: &[f64]| -> Vec<f64> {
+        let wall_pressure = |p: &[T]| -> Vec<T> {
             (nf..n_all)
                 .into_par_iter()
                 .map(|b| {
-                    let (mut sw, mut sp) = (0.0, 0.0);
+                    let (mut sw, mut sp) = (zero, zero);
                     for &f in nl.neighbors(b) {
                         let f = f as usize;
                         if f >= nf {
@@ -455,20 +475,20 @@ impl Iisph {
                         sw += w;
                         sp += (p[f] + rho[f] * (g[0] * d[0] + g[1] * d[1])) * w;
                     }
-                    if sw > 0.0 {
-                        (sp / sw).max(0.0)
+                    if sw > zero {
+                        tmax(sp / sw, zero)
                     } else {
-                        0.0
+                        zero
                     }
                 })
                 .collect()
         };
-        let pressure_acc = |p: &[f64], ap: &mut [[f64; 2]]| {
+        let pressure_acc = |p: &[T], ap: &mut [[T; 2]]| {
             let pw = wall_pressure(p);
             let r02 = rho0 * rho0;
             ap.par_iter_mut().enumerate().for_each(|(i, a)| {
                 let pi = p[i] / (rho[i] * rho[i]);
-                let mut acc = [0.0; 2];
+                let mut acc = [zero; 2];
                 for (gw, &j) in grad_row(i).iter().zip(nl.neighbors(i)) {
                     let j = j as usize;
                     let c = if j < nf { m * (pi + p[j] / (rho[j] * rho[j])) } else { m * (pi + pw[j - nf] / r02) };
@@ -482,23 +502,24 @@ impl Iisph {
         let mut converged = false;
         for it in 1..=self.params.max_iterations {
             pressure_acc(&p, &mut ap);
-            let (new_p, err): (Vec<f64>, Vec<f64>) = (0..nf)
+            let (new_p, err): (Vec<T>, Vec<T>) = (0..nf)
                 .into_par_iter()
                 .map(|i| {
-                    let mut s = 0.0;
+                    let mut s = zero;
                     for (gw, &j) in grad_row(i).iter().zip(nl.neighbors(i)) {
                         let j = j as usize;
-                        let aj = if j < nf { ap[j] } else { [0.0; 2] };
+                        let aj = if j < nf { ap[j] } else { [zero; 2] };
                         s += m * ((ap[i][0] - aj[0]) * gw[0] + (ap[i][1] - aj[1]) * gw[1]);
                     }
                     let apv = dt2 * s;
                     let dev = apv - src[i]; // ρ*_i + (Ap)_i - ρ0
-                    let e = if p[i] > 0.0 { dev.abs() } else { dev.max(0.0) };
-                    let pn = if diag[i] < 0.0 { (p[i] + omega * (src[i] - apv) / diag[i]).max(0.0) } else { 0.0 };
+                    let e = if p[i] > zero { dev.abs() } else { tmax(dev, zero) };
+                    let pn = if diag[i] < zero { tmax(p[i] + omega * (src[i] - apv) / diag[i], zero) } else { zero };
                     (pn, e)
                 })
                 .unzip();
-            let avg = err.iter().sum::<f64>() / (nf.max(1) as f64 * rho0);
+            // Summed in f64: the tolerance is a mean over all fluid particles.
+            let avg = err.iter().map(|&e| wide(e)).sum::<f64>() / (nf.max(1) as f64 * self.rho0);
             stats = SolveStats { iterations: it, density_error: avg };
             if !avg.is_finite() {
                 return Err(Error::NonFinite { what: "pressure", index: 0, step: self.steps });
@@ -520,21 +541,21 @@ impl Iisph {
         }
         pressure_acc(&p, &mut ap);
         let walls = x.len() > nf;
-        let [lo, hi] = self.container;
+        let [lo, hi] = self.container.map(|b| b.map(c));
         let (mut corrections, mut depth) = (0u64, self.max_penetration);
         for i in 0..nf {
             for d in 0..2 {
-                self.v[i][d] = v_adv[i][d] + dt * ap[i][d];
-                self.x[i][d] += dt * self.v[i][d];
+                self.v[i][d] = v_adv[i][d] + dt_t * ap[i][d];
+                self.x[i][d] += dt_t * self.v[i][d];
                 // Impermeable walls, v·n >= 0 on the surface (see the module docs): a centre
                 // that crossed the surface goes back onto it, its inward velocity is removed.
                 if walls {
                     let (below, above) = (lo[d] - self.x[i][d], self.x[i][d] - hi[d]);
-                    if below > 0.0 || above > 0.0 {
-                        depth = depth.max(below.max(above));
+                    if below > zero || above > zero {
+                        depth = depth.max(wide(tmax(below, above)));
                         corrections += 1;
-                        self.x[i][d] = self.x[i][d].clamp(lo[d], hi[d]);
-                        self.v[i][d] = if below > 0.0 { self.v[i][d].max(0.0) } else { self.v[i][d].min(0.0) };
+                        self.x[i][d] = tmin(tmax(self.x[i][d], lo[d]), hi[d]);
+                        self.v[i][d] = if below > zero { tmax(self.v[i][d], zero) } else { tmin(self.v[i][d], zero) };
                     }
                 }
             }
@@ -582,13 +603,13 @@ impl Iisph {
     }
 
     /// Summation densities of the fluid at the current positions (fluid and walls).
-    pub fn summation_density(&mut self) -> Result<Vec<f64>> {
+    pub fn summation_density(&mut self) -> Result<Vec<T>> {
         self.cells.neighbors(&self.x, &mut self.nl)?;
-        let (x, nl, k, m) = (&self.x, &self.nl, self.kernel, self.mass);
+        let (x, nl, k, m) = (&self.x, &self.nl, self.kernel, T::c(self.mass));
         Ok((0..self.n_fluid)
             .into_par_iter()
             .map(|i| {
-                m * k.w(0.0)
+                m * k.w(T::zero())
                     + nl.neighbors(i)
                         .iter()
                         .map(|&j| {
@@ -596,27 +617,27 @@ impl Iisph {
                             let d = [x[i][0] - x[j][0], x[i][1] - x[j][1]];
                             m * k.w((d[0] * d[0] + d[1] * d[1]).sqrt())
                         })
-                        .sum::<f64>()
+                        .sum::<T>()
             })
             .collect())
     }
 
     /// Average compression `mean_i max(ρ_i/ρ0 - 1, 0)` of the summation densities at the
     /// current positions (free-surface particles with missing neighbours do not count as
-    /// error; compression does).
+    /// error; compression does), summed in `f64`.
     pub fn average_compression(&mut self) -> Result<f64> {
         let rho = self.summation_density()?;
-        Ok(rho.iter().map(|r| (r / self.rho0 - 1.0).max(0.0)).sum::<f64>() / self.n_fluid.max(1) as f64)
+        Ok(rho.iter().map(|&r| (wide(r) / self.rho0 - 1.0).max(0.0)).sum::<f64>() / self.n_fluid.max(1) as f64)
     }
 
     /// The largest x of any fluid particle (the surge front).
     pub fn front(&self) -> f64 {
-        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(p[0]))
+        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(wide(p[0])))
     }
 
-    /// Fluid particles outside the container (or non-finite).
+    /// Fluid particles outside the container (or non-finite), compared in `T`.
     pub fn leaked(&self) -> usize {
-        let [lo, hi] = self.container;
+        let [lo, hi] = self.container.map(|b| b.map(T::c));
         self.x[..self.n_fluid]
             .iter()
             .filter(|p| !(p[0] >= lo[0] && p[0] <= hi[0] && p[1] >= lo[1] && p[1] <= hi[1]))
@@ -636,19 +657,29 @@ impl DamBreak {
     ///
     /// Errors: as [`DamBreak::build`], and bad [`IisphParams`].
     pub fn build_iisph(&self, params: IisphParams) -> Result<Iisph> {
+        self.build_iisph_as::<f64>(params)
+    }
+
+    /// As [`DamBreak::build_iisph`] in precision `T` (`f32` or `f64`): the layout and the
+    /// hydrostatic pressure are computed in `f64` and rounded once.
+    ///
+    /// Errors: as [`DamBreak::build_iisph`].
+    pub fn build_iisph_as<T: Real>(&self, params: IisphParams) -> Result<Iisph<T>> {
         params.validate()?;
         let support = params.kernel.support_factor() * params.h_over_dx;
         let lay = self.layout(support, self.wall_layers)?;
-        let p0 = lay.x[..lay.n_fluid].iter().map(|x| self.rho0 * self.g * (lay.height - x[1]).max(0.0)).collect();
+        let p0 = lay.x[..lay.n_fluid].iter().map(|x| T::c(self.rho0 * self.g * (lay.height - x[1]).max(0.0))).collect();
+        let cast = |p: [f64; 2]| p.map(T::c);
+        let domain = Domain { lo: cast(lay.domain.lo), hi: cast(lay.domain.hi), periodic: lay.domain.periodic };
         let mut sim = Iisph::new(
             params,
             self.rho0,
             lay.dx,
             [0.0, -self.g],
-            lay.x,
-            vec![[0.0; 2]; lay.n_fluid],
+            lay.x.into_iter().map(cast).collect(),
+            vec![[T::zero(); 2]; lay.n_fluid],
             lay.n_fluid,
-            lay.domain,
+            domain,
             lay.container,
         )?;
         sim.set_initial_pressure(p0)?;

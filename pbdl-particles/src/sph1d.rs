@@ -15,11 +15,18 @@
 //! from `i`; with equal masses linear momentum is then conserved to round-off.
 //!
 //! Shock tubes put fixed ghost particles (the initial left/right states) beyond both ends.
+//!
+//! Precision: [`Sph1d<T>`] keeps the particle state and does all per-particle arithmetic in `T`
+//! (`f64` by default, or `f32`); parameters, time and the step size stay `f64`, and sums over
+//! particles (momentum, mass, energy, L1 errors) accumulate in `f64`. In `f32` the Sod errors
+//! match `f64` and momentum is conserved to `f32` round-off instead of `f64` round-off (numbers
+//! in `tests/precision_tests.rs`).
 
 use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
 use crate::riemann::{self, GasState, RiemannSolution};
+use pbdl_core::Real;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -109,8 +116,15 @@ impl ShockTube {
     }
 
     /// Equal-mass particles: `n` mobile ones spaced so that the densities are the left and right
-    /// states (e.g. 200 + 25 for Sod with `n = 225`), plus fixed ghosts beyond both ends.
+    /// states (e.g. 200 + 25 for Sod with `n = 225`), plus fixed ghosts beyond both ends; the
+    /// `f64` stepper.
     pub fn build(&self, n: usize, params: Sph1dParams) -> Result<Sph1d> {
+        self.build_as::<f64>(n, params)
+    }
+
+    /// As [`ShockTube::build`] in precision `T` (`f32` or `f64`): the particles are laid out in
+    /// `f64` and rounded once.
+    pub fn build_as<T: Real>(&self, n: usize, params: Sph1dParams) -> Result<Sph1d<T>> {
         let params = Sph1dParams { gamma: self.gamma, ..params };
         params.validate()?;
         self.exact()?;
@@ -155,10 +169,12 @@ impl ShockTube {
         }
         let lo = self.x_lo - (gl as f64 + 1.0) * dxl;
         let hi = self.x_hi + (gr as f64 + 1.0) * dxr;
-        let v = state.iter().map(|s| s.u).collect();
-        let u = state.iter().map(|s| s.internal_energy(self.gamma)).collect();
-        let h = state.iter().map(|s| params.eta * mass / s.rho).collect();
-        Sph1d::new(params, x, v, u, vec![mass; n + gl + gr], Some(h), n, Domain::bounded([lo], [hi]))
+        let x = x.into_iter().map(T::c).collect();
+        let v = state.iter().map(|s| T::c(s.u)).collect();
+        let u = state.iter().map(|s| T::c(s.internal_energy(self.gamma))).collect();
+        let h = state.iter().map(|s| T::c(params.eta * mass / s.rho)).collect();
+        let m = vec![T::c(mass); n + gl + gr];
+        Sph1d::new(params, x, v, u, m, Some(h), n, Domain::bounded([T::c(lo)], [T::c(hi)]))
     }
 }
 
@@ -175,53 +191,85 @@ pub struct L1Errors {
     pub count: usize,
 }
 
-/// The 1D SPH state and stepper.
+/// `v` as `f64` (exact for `f32` and `f64`).
+#[inline]
+pub(crate) fn wide<T: Real>(v: T) -> f64 {
+    candle_core::WithDType::to_f64(v)
+}
+
+/// The larger of `a` and `b`, the other one where one is NaN (as `f64::max`). A method call
+/// `a.max(b)` on a `Real` is ambiguous: candle's `VecOps` and num-traits' `Float` both have one.
+#[inline]
+pub(crate) fn tmax<T: Real>(a: T, b: T) -> T {
+    if b > a || a.is_nan() {
+        b
+    } else {
+        a
+    }
+}
+
+/// The smaller of `a` and `b`, the other one where one is NaN (as `f64::min`).
+#[inline]
+pub(crate) fn tmin<T: Real>(a: T, b: T) -> T {
+    if b < a || a.is_nan() {
+        b
+    } else {
+        a
+    }
+}
+
+/// The 1D SPH state and stepper, in `f64` (default) or `f32`: the particle arrays and all
+/// per-particle arithmetic are in `T`; parameters, time and the step size are `f64`.
 #[derive(Clone, Debug)]
-pub struct Sph1d {
+pub struct Sph1d<T: Real = f64> {
     params: Sph1dParams,
     /// Positions.
-    pub x: Vec<f64>,
+    pub x: Vec<T>,
     /// Velocities.
-    pub v: Vec<f64>,
+    pub v: Vec<T>,
     /// Specific internal energies.
-    pub u: Vec<f64>,
+    pub u: Vec<T>,
     /// Masses.
-    pub m: Vec<f64>,
+    pub m: Vec<T>,
     /// Densities (from the last evaluation).
-    pub rho: Vec<f64>,
+    pub rho: Vec<T>,
     /// Smoothing lengths.
-    pub h: Vec<f64>,
+    pub h: Vec<T>,
     /// Pressures.
-    pub p: Vec<f64>,
-    omega: Vec<f64>,
-    cs: Vec<f64>,
-    acc: Vec<f64>,
-    dudt: Vec<f64>,
-    dt_limit: Vec<f64>,
+    pub p: Vec<T>,
+    omega: Vec<T>,
+    cs: Vec<T>,
+    acc: Vec<T>,
+    dudt: Vec<T>,
+    dt_limit: Vec<T>,
+    v_half: Vec<T>,
+    u_half: Vec<T>,
+    positions: Vec<[T; 1]>,
     n_mobile: usize,
-    domain: Domain<f64, 1>,
-    cells: CellList<f64, 1>,
+    domain: Domain<T, 1>,
+    cells: CellList<T, 1>,
     nl: NeighborList,
     time: f64,
     steps: u64,
 }
 
-impl Sph1d {
+impl<T: Real> Sph1d<T> {
     /// A state from particle arrays. The first `n_mobile` particles move; the rest are fixed
     /// (ghosts keep their state). `h`: initial smoothing lengths (default from a first density
-    /// estimate). The domain may be periodic (then every particle must be mobile).
+    /// estimate). The domain may be periodic (then every particle must be mobile). The
+    /// precision `T` is that of the arrays.
     ///
     /// Errors: mismatched lengths, non-positive or non-finite masses/energies, particles outside
     /// the domain, fixed particles in a periodic domain.
     pub fn new(
         params: Sph1dParams,
-        x: Vec<f64>,
-        v: Vec<f64>,
-        u: Vec<f64>,
-        m: Vec<f64>,
-        h: Option<Vec<f64>>,
+        x: Vec<T>,
+        v: Vec<T>,
+        u: Vec<T>,
+        m: Vec<T>,
+        h: Option<Vec<T>>,
         n_mobile: usize,
-        domain: Domain<f64, 1>,
+        domain: Domain<T, 1>,
     ) -> Result<Self> {
         params.validate()?;
         domain.validate()?;
@@ -237,18 +285,22 @@ impl Sph1d {
         if domain.periodic[0] && n_mobile != n {
             return Err(Error::invalid("n_mobile", "a periodic domain has no fixed particles"));
         }
-        if let Some(i) = m.iter().position(|&mi| !(mi > 0.0 && mi.is_finite())) {
-            return Err(Error::invalid("m", format!("particle {i} has mass {}; masses must be positive", m[i])));
+        let positive = |v: T| v > T::zero() && v.is_finite();
+        if let Some(i) = m.iter().position(|&mi| !positive(mi)) {
+            return Err(Error::invalid("m", format!("particle {i} has mass {}; masses must be positive", wide(m[i]))));
         }
-        if let Some(i) = u.iter().position(|&ui| !(ui > 0.0 && ui.is_finite())) {
-            return Err(Error::invalid("u", format!("particle {i} has internal energy {}; must be positive", u[i])));
+        if let Some(i) = u.iter().position(|&ui| !positive(ui)) {
+            return Err(Error::invalid(
+                "u",
+                format!("particle {i} has internal energy {}; must be positive", wide(u[i])),
+            ));
         }
         if let Some(i) = x.iter().position(|&xi| !(xi >= domain.lo[0] && xi <= domain.hi[0])) {
             return Err(Error::OutsideDomain {
                 index: i,
-                position: vec![x[i]],
-                lo: vec![domain.lo[0]],
-                hi: vec![domain.hi[0]],
+                position: vec![wide(x[i])],
+                lo: vec![wide(domain.lo[0])],
+                hi: vec![wide(domain.hi[0])],
             });
         }
         let h = match h {
@@ -256,28 +308,32 @@ impl Sph1d {
                 if h.len() != n {
                     return Err(Error::Length { op: "Sph1d::new", arg: "h", expected: n, got: h.len() });
                 }
-                if let Some(i) = h.iter().position(|&hi| !(hi > 0.0 && hi.is_finite())) {
-                    return Err(Error::invalid("h", format!("particle {i} has smoothing length {}", h[i])));
+                if let Some(i) = h.iter().position(|&hi| !positive(hi)) {
+                    return Err(Error::invalid("h", format!("particle {i} has smoothing length {}", wide(h[i]))));
                 }
                 h
             }
             None => {
-                let len = domain.hi[0] - domain.lo[0];
+                let len = wide(domain.hi[0]) - wide(domain.lo[0]);
                 let mean = len / n as f64;
-                vec![params.eta * mean; n]
+                vec![T::c(params.eta * mean); n]
             }
         };
         let radius = Self::search_radius_for(&params, &h, &domain);
         let cells = CellList::new(domain, radius)?;
+        let zeros = vec![T::zero(); n];
         let mut s = Sph1d {
             params,
-            rho: vec![0.0; n],
-            p: vec![0.0; n],
-            omega: vec![1.0; n],
-            cs: vec![0.0; n],
-            acc: vec![0.0; n],
-            dudt: vec![0.0; n],
-            dt_limit: vec![f64::INFINITY; n],
+            rho: zeros.clone(),
+            p: zeros.clone(),
+            omega: vec![T::one(); n],
+            cs: zeros.clone(),
+            acc: zeros.clone(),
+            dudt: zeros,
+            dt_limit: vec![T::infinity(); n],
+            v_half: Vec::with_capacity(n_mobile),
+            u_half: Vec::with_capacity(n_mobile),
+            positions: Vec::with_capacity(n),
             x,
             v,
             u,
@@ -291,18 +347,19 @@ impl Sph1d {
             steps: 0,
         };
         // Fixed particles: density from their smoothing length, never updated.
+        let eta = T::c(s.params.eta);
         for i in n_mobile..n {
-            s.rho[i] = s.params.eta * s.m[i] / s.h[i];
+            s.rho[i] = eta * s.m[i] / s.h[i];
         }
         s.evaluate()?;
         Ok(s)
     }
 
-    fn search_radius_for(params: &Sph1dParams, h: &[f64], domain: &Domain<f64, 1>) -> f64 {
-        let hmax = h.iter().fold(0.0f64, |a, &b| a.max(b));
-        let r = 1.3 * params.kernel.support_factor() * hmax;
+    fn search_radius_for(params: &Sph1dParams, h: &[T], domain: &Domain<T, 1>) -> T {
+        let hmax = h.iter().fold(T::zero(), |a, &b| tmax(a, b));
+        let r = T::c(1.3 * params.kernel.support_factor()) * hmax;
         if domain.periodic[0] {
-            r.min(0.5 * (domain.hi[0] - domain.lo[0]))
+            tmin(r, T::c(0.5) * (domain.hi[0] - domain.lo[0]))
         } else {
             r
         }
@@ -343,28 +400,33 @@ impl Sph1d {
     }
 
     /// The domain.
-    pub fn domain(&self) -> &Domain<f64, 1> {
+    pub fn domain(&self) -> &Domain<T, 1> {
         &self.domain
     }
 
-    /// Total linear momentum of the mobile particles.
+    /// Total linear momentum of the mobile particles (summed in `f64`).
     pub fn momentum(&self) -> f64 {
-        (0..self.n_mobile).map(|i| self.m[i] * self.v[i]).sum()
+        (0..self.n_mobile).map(|i| wide(self.m[i]) * wide(self.v[i])).sum()
     }
 
-    /// `Σ m |v|` of the mobile particles (scale for relative momentum drift).
+    /// `Σ m |v|` of the mobile particles (scale for relative momentum drift; `f64` sum).
     pub fn momentum_scale(&self) -> f64 {
-        (0..self.n_mobile).map(|i| self.m[i] * self.v[i].abs()).sum()
+        (0..self.n_mobile).map(|i| wide(self.m[i]) * wide(self.v[i]).abs()).sum()
     }
 
-    /// Total mass of the mobile particles.
+    /// Total mass of the mobile particles (summed in `f64`).
     pub fn total_mass(&self) -> f64 {
-        self.m[..self.n_mobile].iter().sum()
+        self.m[..self.n_mobile].iter().map(|&m| wide(m)).sum()
     }
 
-    /// Total energy (kinetic + internal) of the mobile particles.
+    /// Total energy (kinetic + internal) of the mobile particles (summed in `f64`).
     pub fn total_energy(&self) -> f64 {
-        (0..self.n_mobile).map(|i| self.m[i] * (0.5 * self.v[i] * self.v[i] + self.u[i])).sum()
+        (0..self.n_mobile)
+            .map(|i| {
+                let v = wide(self.v[i]);
+                wide(self.m[i]) * (0.5 * v * v + wide(self.u[i]))
+            })
+            .sum()
     }
 
     /// Density, smoothing length, `Ω`, pressure and sound speed of the mobile particles, then
@@ -373,16 +435,21 @@ impl Sph1d {
         let n = self.x.len();
         let nm = self.n_mobile;
         let kind = self.params.kernel;
-        let eta = self.params.eta;
-        let support = kind.support_factor();
+        let c = T::c;
+        let (zero, one, half, two) = (T::zero(), T::one(), c(0.5), c(2.0));
+        let eta = c(self.params.eta);
+        let support = c(kind.support_factor());
+        // Newton stops at a relative change of 1e-12, or a few ulps where `T` is coarser.
+        let h_tol = tmax(c(1e-12), c(16.0) * T::epsilon());
         // Density + h by Newton's method; rebuild with a larger radius if some h outgrew it.
         for attempt in 0..4 {
             let radius = Self::search_radius_for(&self.params, &self.h, &self.domain);
-            if attempt > 0 || (radius - self.cells.radius()).abs() > 0.05 * radius {
+            if attempt > 0 || (radius - self.cells.radius()).abs() > c(0.05) * radius {
                 self.cells.set_radius(radius)?;
             }
-            let positions: Vec<[f64; 1]> = self.x.iter().map(|&x| [x]).collect();
-            self.cells.neighbors(&positions, &mut self.nl)?;
+            self.positions.clear();
+            self.positions.extend(self.x.iter().map(|&x| [x]));
+            self.cells.neighbors(&self.positions, &mut self.nl)?;
             let max_h = self.cells.radius() / support;
             let (x, m, nl, dom) = (&self.x, &self.m, &self.nl, &self.domain);
             let too_big = self.h[..nm]
@@ -393,8 +460,9 @@ impl Sph1d {
                 .map(|(i, ((h, rho), omega))| {
                     let mut hi = *h;
                     for _ in 0..30 {
-                        let k = Kernel::<f64>::new(kind, 1, hi).expect("h > 0");
-                        let (mut r_sum, mut dr_dh) = (m[i] * k.w(0.0), -m[i] * k.w(0.0) / hi);
+                        let k = Kernel::<T>::new(kind, 1, hi).expect("h > 0");
+                        let w0 = k.w(zero);
+                        let (mut r_sum, mut dr_dh) = (m[i] * w0, -m[i] * w0 / hi);
                         for &j in nl.neighbors(i) {
                             let r = dom.displacement(&[x[i]], &[x[j as usize]])[0].abs();
                             let (w, dw) = k.w_dw(r);
@@ -405,14 +473,14 @@ impl Sph1d {
                         let f = r_sum - rho_h;
                         let df = dr_dh + rho_h / hi;
                         *rho = r_sum;
-                        *omega = 1.0 + hi / r_sum * dr_dh;
+                        *omega = one + hi / r_sum * dr_dh;
                         let mut h_new = hi - f / df;
-                        if !(h_new.is_finite()) || h_new <= 0.5 * hi || h_new >= 2.0 * hi {
+                        if !(h_new.is_finite()) || h_new <= half * hi || h_new >= two * hi {
                             // Fall back to a damped fixed-point update.
-                            h_new = (0.5 * hi + 0.5 * eta * m[i] / r_sum).clamp(0.5 * hi, 2.0 * hi);
+                            h_new = tmin(tmax(half * hi + half * eta * m[i] / r_sum, half * hi), two * hi);
                         }
-                        let done = (h_new - hi).abs() < 1e-12 * hi;
-                        hi = h_new.min(max_h);
+                        let done = (h_new - hi).abs() < h_tol * hi;
+                        hi = tmin(h_new, max_h);
                         if done {
                             break;
                         }
@@ -425,17 +493,18 @@ impl Sph1d {
                 break;
             }
         }
-        if let Some(i) = self.rho[..nm].iter().position(|r| !r.is_finite() || *r <= 0.0) {
+        if let Some(i) = self.rho[..nm].iter().position(|r| !r.is_finite() || *r <= zero) {
             return Err(Error::NonFinite { what: "density", index: i, step: self.steps });
         }
-        let g = self.params.gamma;
+        let g = c(self.params.gamma);
         for i in 0..n {
-            self.p[i] = (g - 1.0) * self.rho[i] * self.u[i];
+            self.p[i] = (g - one) * self.rho[i] * self.u[i];
             self.cs[i] = (g * self.p[i] / self.rho[i]).sqrt();
         }
         // Forces.
-        let (alpha, beta) = (self.params.alpha, self.params.beta);
-        let viscous = alpha > 0.0 || beta > 0.0;
+        let (alpha, beta) = (c(self.params.alpha), c(self.params.beta));
+        let viscous = self.params.alpha > 0.0 || self.params.beta > 0.0;
+        let (c001, c12) = (c(0.01), c(1.2));
         let (x, v, m, h, rho, p, cs, omega, nl, dom) =
             (&self.x, &self.v, &self.m, &self.h, &self.rho, &self.p, &self.cs, &self.omega, &self.nl, &self.domain);
         self.acc[..nm]
@@ -444,48 +513,49 @@ impl Sph1d {
             .zip(self.dt_limit[..nm].par_iter_mut())
             .enumerate()
             .for_each(|(i, ((a, du), dtl))| {
-                let ki = Kernel::<f64>::new(kind, 1, h[i]).expect("h > 0");
+                let ki = Kernel::<T>::new(kind, 1, h[i]).expect("h > 0");
                 let pi = p[i] / (omega[i] * rho[i] * rho[i]);
-                let (mut ai, mut dui, mut mu_max) = (0.0, 0.0, 0.0f64);
+                let (mut ai, mut dui, mut mu_max) = (zero, zero, zero);
                 for &j in nl.neighbors(i) {
                     let j = j as usize;
                     let dx = dom.displacement(&[x[j]], &[x[i]])[0];
                     let r = dx.abs();
-                    if r == 0.0 {
+                    if r == zero {
                         continue;
                     }
-                    let kj = Kernel::<f64>::new(kind, 1, h[j]).expect("h > 0");
+                    let kj = Kernel::<T>::new(kind, 1, h[j]).expect("h > 0");
                     let gi = ki.dw_dr(r) / r * dx;
                     let gj = kj.dw_dr(r) / r * dx;
-                    let gbar = 0.5 * (gi + gj);
+                    let gbar = half * (gi + gj);
                     let vij = v[i] - v[j];
                     let vx = vij * dx;
-                    let mut visc = 0.0;
-                    if vx < 0.0 && viscous {
-                        let hbar = 0.5 * (h[i] + h[j]);
-                        let mu = hbar * vx / (r * r + 0.01 * hbar * hbar);
-                        let cbar = 0.5 * (cs[i] + cs[j]);
-                        let rbar = 0.5 * (rho[i] + rho[j]);
+                    let mut visc = zero;
+                    if vx < zero && viscous {
+                        let hbar = half * (h[i] + h[j]);
+                        let mu = hbar * vx / (r * r + c001 * hbar * hbar);
+                        let cbar = half * (cs[i] + cs[j]);
+                        let rbar = half * (rho[i] + rho[j]);
                         visc = (-alpha * cbar * mu + beta * mu * mu) / rbar;
-                        mu_max = mu_max.max(mu.abs());
+                        mu_max = tmax(mu_max, mu.abs());
                     }
                     let pj = p[j] / (omega[j] * rho[j] * rho[j]);
                     ai -= m[j] * (pi * gi + pj * gj + visc * gbar);
-                    dui += m[j] * (pi * vij * gi + 0.5 * visc * vij * gbar);
+                    dui += m[j] * (pi * vij * gi + half * visc * vij * gbar);
                 }
                 *a = ai;
                 *du = dui;
-                *dtl = h[i] / (cs[i] + 1.2 * (alpha * cs[i] + beta * mu_max));
+                *dtl = h[i] / (cs[i] + c12 * (alpha * cs[i] + beta * mu_max));
             });
         Ok(())
     }
 
     /// The largest stable time step of the current state (`cfl * min_i dt_i`).
     pub fn stable_dt(&self) -> f64 {
-        self.params.cfl * self.dt_limit[..self.n_mobile].iter().fold(f64::INFINITY, |a, &b| a.min(b))
+        self.params.cfl * wide(self.dt_limit[..self.n_mobile].iter().fold(T::infinity(), |a, &b| tmin(a, b)))
     }
 
-    /// One kick-drift-kick step of size `dt`.
+    /// One kick-drift-kick step of size `dt` (rounded to `T` for the update; time advances by
+    /// `dt` in `f64`).
     ///
     /// Errors: [`Error::UnstableTimeStep`] if `dt` exceeds [`Sph1d::stable_dt`] (nothing is
     /// changed), [`Error::NonFinite`] if the state blows up.
@@ -495,11 +565,11 @@ impl Sph1d {
             return Err(Error::UnstableTimeStep { dt, limit, criterion: "CFL (signal speed)" });
         }
         let nm = self.n_mobile;
-        let half = 0.5 * dt;
+        let (dt_t, half) = (T::c(dt), T::c(0.5 * dt));
         for i in 0..nm {
             self.v[i] += half * self.acc[i];
             self.u[i] += half * self.dudt[i];
-            self.x[i] += dt * self.v[i];
+            self.x[i] += dt_t * self.v[i];
         }
         if self.domain.periodic[0] {
             for i in 0..nm {
@@ -507,16 +577,19 @@ impl Sph1d {
             }
         }
         // Predict velocity/energy at the end of the step for the viscous and work terms.
-        let v_half: Vec<f64> = self.v[..nm].to_vec();
-        let u_half: Vec<f64> = self.u[..nm].to_vec();
+        self.v_half.clear();
+        self.v_half.extend_from_slice(&self.v[..nm]);
+        self.u_half.clear();
+        self.u_half.extend_from_slice(&self.u[..nm]);
+        let floor = T::c(1e-12);
         for i in 0..nm {
             self.v[i] += half * self.acc[i];
-            self.u[i] = (self.u[i] + half * self.dudt[i]).max(1e-12 * self.u[i]);
+            self.u[i] = tmax(self.u[i] + half * self.dudt[i], floor * self.u[i]);
         }
         self.evaluate()?;
         for i in 0..nm {
-            self.v[i] = v_half[i] + half * self.acc[i];
-            self.u[i] = u_half[i] + half * self.dudt[i];
+            self.v[i] = self.v_half[i] + half * self.acc[i];
+            self.u[i] = self.u_half[i] + half * self.dudt[i];
         }
         if let Some(i) = (0..nm).find(|&i| !(self.v[i].is_finite() && self.u[i].is_finite() && self.x[i].is_finite())) {
             return Err(Error::NonFinite { what: "velocity or energy", index: i, step: self.steps });
@@ -536,15 +609,17 @@ impl Sph1d {
         Ok(self.steps - start)
     }
 
-    /// L1 errors over mobile particles with `|x - x0| < half_width` against `reference(x)`.
+    /// L1 errors over mobile particles with `|x - x0| < half_width` against `reference(x)`
+    /// (accumulated in `f64`).
     pub fn l1_errors(&self, x0: f64, half_width: f64, reference: impl Fn(f64) -> GasState) -> L1Errors {
         let mut e = L1Errors { rho: 0.0, u: 0.0, p: 0.0, count: 0 };
         for i in 0..self.n_mobile {
-            if (self.x[i] - x0).abs() < half_width {
-                let r = reference(self.x[i]);
-                e.rho += (self.rho[i] - r.rho).abs();
-                e.u += (self.v[i] - r.u).abs();
-                e.p += (self.p[i] - r.p).abs();
+            let xi = wide(self.x[i]);
+            if (xi - x0).abs() < half_width {
+                let r = reference(xi);
+                e.rho += (wide(self.rho[i]) - r.rho).abs();
+                e.u += (wide(self.v[i]) - r.u).abs();
+                e.p += (wide(self.p[i]) - r.p).abs();
                 e.count += 1;
             }
         }
