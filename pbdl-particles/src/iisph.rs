@@ -57,7 +57,6 @@
 use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
-use crate::sph1d::{tmax, tmin, wide};
 use crate::wcsph::DamBreak;
 use pbdl_core::Real;
 use rayon::prelude::*;
@@ -210,9 +209,9 @@ impl<T: Real> Iisph<T> {
         if let Some(i) = x.iter().position(|p| !(0..2).all(|d| p[d] >= domain.lo[d] && p[d] <= domain.hi[d])) {
             return Err(Error::OutsideDomain {
                 index: i,
-                position: x[i].map(wide).to_vec(),
-                lo: domain.lo.map(wide).to_vec(),
-                hi: domain.hi.map(wide).to_vec(),
+                position: x[i].map(Real::wide).to_vec(),
+                lo: domain.lo.map(Real::wide).to_vec(),
+                hi: domain.hi.map(Real::wide).to_vec(),
             });
         }
         let kernel = Kernel::<T>::new(params.kernel, 2, T::c(params.h_over_dx * dx))?;
@@ -305,7 +304,7 @@ impl<T: Real> Iisph<T> {
             });
         }
         if let Some(i) = p.iter().position(|v| !(*v >= T::zero() && v.is_finite())) {
-            return Err(Error::invalid("p", format!("particle {i} has pressure {}", wide(p[i]))));
+            return Err(Error::invalid("p", format!("particle {i} has pressure {}", p[i].wide())));
         }
         self.p = p;
         self.warm = 1.0;
@@ -341,7 +340,7 @@ impl<T: Real> Iisph<T> {
 
     /// The stable step: `min(cfl dx / |v|max, cfl sqrt(dx / |g|), dt_max)`.
     pub fn stable_dt(&self) -> f64 {
-        let vmax = self.v.iter().fold(0.0f64, |a, v| a.max(wide((v[0] * v[0] + v[1] * v[1]).sqrt())));
+        let vmax = self.v.iter().fold(0.0f64, |a, v| a.max((v[0] * v[0] + v[1] * v[1]).sqrt().wide()));
         let g = (self.gravity[0].powi(2) + self.gravity[1].powi(2)).sqrt();
         let mut dt = self.params.dt_max;
         if vmax > 0.0 {
@@ -476,7 +475,7 @@ impl<T: Real> Iisph<T> {
                         sp += (p[f] + rho[f] * (g[0] * d[0] + g[1] * d[1])) * w;
                     }
                     if sw > zero {
-                        tmax(sp / sw, zero)
+                        (sp / sw).fmax(zero)
                     } else {
                         zero
                     }
@@ -513,13 +512,13 @@ impl<T: Real> Iisph<T> {
                     }
                     let apv = dt2 * s;
                     let dev = apv - src[i]; // ρ*_i + (Ap)_i - ρ0
-                    let e = if p[i] > zero { dev.abs() } else { tmax(dev, zero) };
-                    let pn = if diag[i] < zero { tmax(p[i] + omega * (src[i] - apv) / diag[i], zero) } else { zero };
+                    let e = if p[i] > zero { dev.abs() } else { dev.fmax(zero) };
+                    let pn = if diag[i] < zero { (p[i] + omega * (src[i] - apv) / diag[i]).fmax(zero) } else { zero };
                     (pn, e)
                 })
                 .unzip();
             // Summed in f64: the tolerance is a mean over all fluid particles.
-            let avg = err.iter().map(|&e| wide(e)).sum::<f64>() / (nf.max(1) as f64 * self.rho0);
+            let avg = err.iter().map(|&e| e.wide()).sum::<f64>() / (nf.max(1) as f64 * self.rho0);
             stats = SolveStats { iterations: it, density_error: avg };
             if !avg.is_finite() {
                 return Err(Error::NonFinite { what: "pressure", index: 0, step: self.steps });
@@ -552,10 +551,10 @@ impl<T: Real> Iisph<T> {
                 if walls {
                     let (below, above) = (lo[d] - self.x[i][d], self.x[i][d] - hi[d]);
                     if below > zero || above > zero {
-                        depth = depth.max(wide(tmax(below, above)));
+                        depth = depth.max(below.fmax(above).wide());
                         corrections += 1;
-                        self.x[i][d] = tmin(tmax(self.x[i][d], lo[d]), hi[d]);
-                        self.v[i][d] = if below > zero { tmax(self.v[i][d], zero) } else { tmin(self.v[i][d], zero) };
+                        self.x[i][d] = self.x[i][d].fmax(lo[d]).fmin(hi[d]);
+                        self.v[i][d] = if below > zero { self.v[i][d].fmax(zero) } else { self.v[i][d].fmin(zero) };
                     }
                 }
             }
@@ -627,12 +626,12 @@ impl<T: Real> Iisph<T> {
     /// error; compression does), summed in `f64`.
     pub fn average_compression(&mut self) -> Result<f64> {
         let rho = self.summation_density()?;
-        Ok(rho.iter().map(|&r| (wide(r) / self.rho0 - 1.0).max(0.0)).sum::<f64>() / self.n_fluid.max(1) as f64)
+        Ok(rho.iter().map(|&r| (r.wide() / self.rho0 - 1.0).max(0.0)).sum::<f64>() / self.n_fluid.max(1) as f64)
     }
 
     /// The largest x of any fluid particle (the surge front).
     pub fn front(&self) -> f64 {
-        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(wide(p[0])))
+        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(p[0].wide()))
     }
 
     /// Fluid particles outside the container (or non-finite), compared in `T`.

@@ -8,16 +8,17 @@
 //! | [`neighbors`] | [`CellList`] (counting sort on cell keys, 1D/2D/3D, periodic or bounded, rayon), CSR [`NeighborList`] and pair lists, [`neighbors::brute_force`] |
 //! | [`kernels`] | [`Kernel`]: cubic spline, quintic, Wendland C2/C4, poly6, spiky in 1D/2D/3D with gradients |
 //! | [`riemann`] | exact Riemann solver of the 1D Euler equations ([`riemann::solve`], [`GasState`]) |
-//! | [`sph1d`] | [`Sph1d`]: compressible 1D SPH (grad-h, Monaghan viscosity), [`ShockTube`] (Sod by default), periodic boxes |
-//! | [`wcsph`] | [`Wcsph`]: 2D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, extrapolated wall particles), [`DamBreak`] (Martin & Moyce) |
-//! | [`iisph`] | [`Iisph`]: 2D implicit incompressible SPH (relaxed-Jacobi pressure solve to a stated density tolerance, wall particles), [`DamBreak::build_iisph`] |
+//! | [`sph1d`] | [`Sph1d`]: compressible 1D SPH (grad-h, Monaghan viscosity), [`ShockTube`] (Sod by default; `build_as::<f32>` for single precision), periodic boxes |
+//! | [`wcsph`] | [`Wcsph`]: 2D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, extrapolated wall particles), [`DamBreak`] (Martin & Moyce; [`DamBreak::build_as`] picks `f32` or `f64`) |
+//! | [`iisph`] | [`Iisph`]: 2D implicit incompressible SPH (relaxed-Jacobi pressure solve to a stated density tolerance, wall particles), [`DamBreak::build_iisph`] / [`DamBreak::build_iisph_as`] |
 //! | [`render`] | particles splatted into pixel fields for PNG/GIF ([`render::scatter`]) |
 //! | [`scene`] | [`scene::Scene`]: TOML scenes (shock tube, dam break WCSPH/IISPH, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
 //! | [`mod@tasks`] | [`tasks()`]: tour (Sod, dam break WCSPH and IISPH), bench (neighbour search, Sod time vs error, WCSPH step), stress (dam break to T = 10, strong shocks) |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
-//! Conventions: positions are slices of `[T; D]` (`T` = `f32` or `f64`); neighbour lists
-//! exclude the particle itself.
+//! Conventions: positions are slices of `[T; D]` (`T` = `f32` or `f64`); every solver is generic
+//! over `T` with `f64` as the default type (parameters, time and step sizes stay `f64`; sums such
+//! as momentum and mass are accumulated in `f64`); neighbour lists exclude the particle itself.
 #![warn(missing_docs)]
 
 pub mod error;

@@ -191,33 +191,6 @@ pub struct L1Errors {
     pub count: usize,
 }
 
-/// `v` as `f64` (exact for `f32` and `f64`).
-#[inline]
-pub(crate) fn wide<T: Real>(v: T) -> f64 {
-    candle_core::WithDType::to_f64(v)
-}
-
-/// The larger of `a` and `b`, the other one where one is NaN (as `f64::max`). A method call
-/// `a.max(b)` on a `Real` is ambiguous: candle's `VecOps` and num-traits' `Float` both have one.
-#[inline]
-pub(crate) fn tmax<T: Real>(a: T, b: T) -> T {
-    if b > a || a.is_nan() {
-        b
-    } else {
-        a
-    }
-}
-
-/// The smaller of `a` and `b`, the other one where one is NaN (as `f64::min`).
-#[inline]
-pub(crate) fn tmin<T: Real>(a: T, b: T) -> T {
-    if b < a || a.is_nan() {
-        b
-    } else {
-        a
-    }
-}
-
 /// The 1D SPH state and stepper, in `f64` (default) or `f32`: the particle arrays and all
 /// per-particle arithmetic are in `T`; parameters, time and the step size are `f64`.
 #[derive(Clone, Debug)]
@@ -287,20 +260,20 @@ impl<T: Real> Sph1d<T> {
         }
         let positive = |v: T| v > T::zero() && v.is_finite();
         if let Some(i) = m.iter().position(|&mi| !positive(mi)) {
-            return Err(Error::invalid("m", format!("particle {i} has mass {}; masses must be positive", wide(m[i]))));
+            return Err(Error::invalid("m", format!("particle {i} has mass {}; masses must be positive", m[i].wide())));
         }
         if let Some(i) = u.iter().position(|&ui| !positive(ui)) {
             return Err(Error::invalid(
                 "u",
-                format!("particle {i} has internal energy {}; must be positive", wide(u[i])),
+                format!("particle {i} has internal energy {}; must be positive", u[i].wide()),
             ));
         }
         if let Some(i) = x.iter().position(|&xi| !(xi >= domain.lo[0] && xi <= domain.hi[0])) {
             return Err(Error::OutsideDomain {
                 index: i,
-                position: vec![wide(x[i])],
-                lo: vec![wide(domain.lo[0])],
-                hi: vec![wide(domain.hi[0])],
+                position: vec![x[i].wide()],
+                lo: vec![domain.lo[0].wide()],
+                hi: vec![domain.hi[0].wide()],
             });
         }
         let h = match h {
@@ -309,12 +282,12 @@ impl<T: Real> Sph1d<T> {
                     return Err(Error::Length { op: "Sph1d::new", arg: "h", expected: n, got: h.len() });
                 }
                 if let Some(i) = h.iter().position(|&hi| !positive(hi)) {
-                    return Err(Error::invalid("h", format!("particle {i} has smoothing length {}", wide(h[i]))));
+                    return Err(Error::invalid("h", format!("particle {i} has smoothing length {}", h[i].wide())));
                 }
                 h
             }
             None => {
-                let len = wide(domain.hi[0]) - wide(domain.lo[0]);
+                let len = domain.hi[0].wide() - domain.lo[0].wide();
                 let mean = len / n as f64;
                 vec![T::c(params.eta * mean); n]
             }
@@ -356,10 +329,10 @@ impl<T: Real> Sph1d<T> {
     }
 
     fn search_radius_for(params: &Sph1dParams, h: &[T], domain: &Domain<T, 1>) -> T {
-        let hmax = h.iter().fold(T::zero(), |a, &b| tmax(a, b));
+        let hmax = h.iter().fold(T::zero(), |a, &b| a.fmax(b));
         let r = T::c(1.3 * params.kernel.support_factor()) * hmax;
         if domain.periodic[0] {
-            tmin(r, T::c(0.5) * (domain.hi[0] - domain.lo[0]))
+            r.fmin(T::c(0.5) * (domain.hi[0] - domain.lo[0]))
         } else {
             r
         }
@@ -406,25 +379,25 @@ impl<T: Real> Sph1d<T> {
 
     /// Total linear momentum of the mobile particles (summed in `f64`).
     pub fn momentum(&self) -> f64 {
-        (0..self.n_mobile).map(|i| wide(self.m[i]) * wide(self.v[i])).sum()
+        (0..self.n_mobile).map(|i| self.m[i].wide() * self.v[i].wide()).sum()
     }
 
     /// `Σ m |v|` of the mobile particles (scale for relative momentum drift; `f64` sum).
     pub fn momentum_scale(&self) -> f64 {
-        (0..self.n_mobile).map(|i| wide(self.m[i]) * wide(self.v[i]).abs()).sum()
+        (0..self.n_mobile).map(|i| self.m[i].wide() * self.v[i].wide().abs()).sum()
     }
 
     /// Total mass of the mobile particles (summed in `f64`).
     pub fn total_mass(&self) -> f64 {
-        self.m[..self.n_mobile].iter().map(|&m| wide(m)).sum()
+        self.m[..self.n_mobile].iter().map(|&m| m.wide()).sum()
     }
 
     /// Total energy (kinetic + internal) of the mobile particles (summed in `f64`).
     pub fn total_energy(&self) -> f64 {
         (0..self.n_mobile)
             .map(|i| {
-                let v = wide(self.v[i]);
-                wide(self.m[i]) * (0.5 * v * v + wide(self.u[i]))
+                let v = self.v[i].wide();
+                self.m[i].wide() * (0.5 * v * v + self.u[i].wide())
             })
             .sum()
     }
@@ -440,7 +413,7 @@ impl<T: Real> Sph1d<T> {
         let eta = c(self.params.eta);
         let support = c(kind.support_factor());
         // Newton stops at a relative change of 1e-12, or a few ulps where `T` is coarser.
-        let h_tol = tmax(c(1e-12), c(16.0) * T::epsilon());
+        let h_tol = (c(1e-12)).fmax(c(16.0) * T::epsilon());
         // Density + h by Newton's method; rebuild with a larger radius if some h outgrew it.
         for attempt in 0..4 {
             let radius = Self::search_radius_for(&self.params, &self.h, &self.domain);
@@ -477,10 +450,10 @@ impl<T: Real> Sph1d<T> {
                         let mut h_new = hi - f / df;
                         if !(h_new.is_finite()) || h_new <= half * hi || h_new >= two * hi {
                             // Fall back to a damped fixed-point update.
-                            h_new = tmin(tmax(half * hi + half * eta * m[i] / r_sum, half * hi), two * hi);
+                            h_new = ((half * hi + half * eta * m[i] / r_sum).fmax(half * hi)).fmin(two * hi);
                         }
                         let done = (h_new - hi).abs() < h_tol * hi;
-                        hi = tmin(h_new, max_h);
+                        hi = h_new.fmin(max_h);
                         if done {
                             break;
                         }
@@ -536,7 +509,7 @@ impl<T: Real> Sph1d<T> {
                         let cbar = half * (cs[i] + cs[j]);
                         let rbar = half * (rho[i] + rho[j]);
                         visc = (-alpha * cbar * mu + beta * mu * mu) / rbar;
-                        mu_max = tmax(mu_max, mu.abs());
+                        mu_max = mu_max.fmax(mu.abs());
                     }
                     let pj = p[j] / (omega[j] * rho[j] * rho[j]);
                     ai -= m[j] * (pi * gi + pj * gj + visc * gbar);
@@ -551,7 +524,7 @@ impl<T: Real> Sph1d<T> {
 
     /// The largest stable time step of the current state (`cfl * min_i dt_i`).
     pub fn stable_dt(&self) -> f64 {
-        self.params.cfl * wide(self.dt_limit[..self.n_mobile].iter().fold(T::infinity(), |a, &b| tmin(a, b)))
+        self.params.cfl * (self.dt_limit[..self.n_mobile].iter().fold(T::infinity(), |a, &b| a.fmin(b))).wide()
     }
 
     /// One kick-drift-kick step of size `dt` (rounded to `T` for the update; time advances by
@@ -584,7 +557,7 @@ impl<T: Real> Sph1d<T> {
         let floor = T::c(1e-12);
         for i in 0..nm {
             self.v[i] += half * self.acc[i];
-            self.u[i] = tmax(self.u[i] + half * self.dudt[i], floor * self.u[i]);
+            self.u[i] = (self.u[i] + half * self.dudt[i]).fmax(floor * self.u[i]);
         }
         self.evaluate()?;
         for i in 0..nm {
@@ -614,12 +587,12 @@ impl<T: Real> Sph1d<T> {
     pub fn l1_errors(&self, x0: f64, half_width: f64, reference: impl Fn(f64) -> GasState) -> L1Errors {
         let mut e = L1Errors { rho: 0.0, u: 0.0, p: 0.0, count: 0 };
         for i in 0..self.n_mobile {
-            let xi = wide(self.x[i]);
+            let xi = self.x[i].wide();
             if (xi - x0).abs() < half_width {
                 let r = reference(xi);
-                e.rho += (wide(self.rho[i]) - r.rho).abs();
-                e.u += (wide(self.v[i]) - r.u).abs();
-                e.p += (wide(self.p[i]) - r.p).abs();
+                e.rho += (self.rho[i].wide() - r.rho).abs();
+                e.u += (self.v[i].wide() - r.u).abs();
+                e.p += (self.p[i].wide() - r.p).abs();
                 e.count += 1;
             }
         }

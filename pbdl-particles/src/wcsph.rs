@@ -293,9 +293,9 @@ impl<T: Real> Wcsph<T> {
         if let Some(i) = x.iter().position(|p| !(0..2).all(|d| p[d] >= domain.lo[d] && p[d] <= domain.hi[d])) {
             return Err(Error::OutsideDomain {
                 index: i,
-                position: x[i].iter().map(|c| to64(*c)).collect(),
-                lo: domain.lo.iter().map(|c| to64(*c)).collect(),
-                hi: domain.hi.iter().map(|c| to64(*c)).collect(),
+                position: x[i].iter().map(|c| c.wide()).collect(),
+                lo: domain.lo.iter().map(|c| c.wide()).collect(),
+                hi: domain.hi.iter().map(|c| c.wide()).collect(),
             });
         }
         let kernel = Kernel::new(params.kernel, 2, T::c(params.h_over_dx * phys.dx))?;
@@ -363,7 +363,7 @@ impl<T: Real> Wcsph<T> {
     /// Total linear momentum of the fluid (all particles have the same mass), summed in `f64`.
     pub fn momentum(&self) -> [f64; 2] {
         let m = self.phys.mass;
-        self.v.iter().fold([0.0; 2], |a, v| [a[0] + m * to64(v[0]), a[1] + m * to64(v[1])])
+        self.v.iter().fold([0.0; 2], |a, v| [a[0] + m * v[0].wide(), a[1] + m * v[1].wide()])
     }
 
     /// Simulated time.
@@ -481,7 +481,7 @@ impl<T: Real> Wcsph<T> {
             *a = if has_gravity { [ax + g[0], ay + g[1]] } else { [ax, ay] };
             *dr = d;
         });
-        self.max_acc = self.acc.iter().fold(0.0f64, |acc, a| acc.max(to64((a[0] * a[0] + a[1] * a[1]).sqrt())));
+        self.max_acc = self.acc.iter().fold(0.0f64, |acc, a| acc.max((a[0] * a[0] + a[1] * a[1]).sqrt().wide()));
         if let Some(i) =
             (0..nf).find(|&i| !(self.acc[i][0].is_finite() && self.acc[i][1].is_finite() && self.drho[i].is_finite()))
         {
@@ -492,8 +492,8 @@ impl<T: Real> Wcsph<T> {
 
     /// The stable time step and the criterion that sets it.
     pub fn stable_dt(&self) -> (f64, &'static str) {
-        let h = to64(self.kernel.h());
-        let vmax = self.v.iter().fold(0.0f64, |a, v| a.max(to64((v[0] * v[0] + v[1] * v[1]).sqrt())));
+        let h = self.kernel.h().wide();
+        let vmax = self.v.iter().fold(0.0f64, |a, v| a.max((v[0] * v[0] + v[1] * v[1]).sqrt().wide()));
         let cfl = self.params.cfl * h / (self.phys.c0 + vmax);
         let force = if self.max_acc > 0.0 { 0.25 * (h / self.max_acc).sqrt() } else { f64::INFINITY };
         let nu = self.params.alpha * h * self.phys.c0 / 8.0;
@@ -565,7 +565,7 @@ impl<T: Real> Wcsph<T> {
 
     /// The largest x of any fluid particle (the surge front).
     pub fn front(&self) -> f64 {
-        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(to64(p[0])))
+        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(p[0].wide()))
     }
 
     /// Fluid particles outside the container (or non-finite).
@@ -573,7 +573,7 @@ impl<T: Real> Wcsph<T> {
         let [lo, hi] = self.container;
         self.x[..self.n_fluid]
             .iter()
-            .map(|p| [to64(p[0]), to64(p[1])])
+            .map(|p| [p[0].wide(), p[1].wide()])
             .filter(|p| !(p[0] >= lo[0] && p[0] <= hi[0] && p[1] >= lo[1] && p[1] <= hi[1]))
             .count()
     }
@@ -586,12 +586,7 @@ impl<T: Real> Wcsph<T> {
 
     /// Mean `|ρ/ρ0 - 1|` over the fluid, summed in `f64`.
     pub fn mean_density_error(&self) -> f64 {
-        self.rho[..self.n_fluid].iter().map(|r| (to64(*r) / self.phys.rho0 - 1.0).abs()).sum::<f64>()
+        self.rho[..self.n_fluid].iter().map(|r| (r.wide() / self.phys.rho0 - 1.0).abs()).sum::<f64>()
             / self.n_fluid as f64
     }
-}
-
-/// `T` to `f64` for diagnostics (exact for `f32` and `f64`).
-fn to64<T: Real>(v: T) -> f64 {
-    candle_core::WithDType::to_f64(v)
 }
