@@ -3,7 +3,9 @@
 //! * tour: Sod's shock tube against the exact solution (PNG), the dam break (PNG + GIF) with
 //!   the surge front against Martin & Moyce, the IISPH dam break (GIF) with its density error.
 //! * bench: neighbour search throughput (100k points, ~40 neighbours, 2D/3D), Sod time against
-//!   L1 error at several particle counts, one WCSPH and one IISPH dam-break step.
+//!   L1 error at several particle counts, one WCSPH and one IISPH dam-break step. The peers
+//!   (SciPy, Open3D, PySPH) are measured by `bench/peers/particles_run.sh`; `cargo xtask bench`
+//!   merges their rows.
 //! * stress: the dam break to T = 10 (quick: T = 3) without NaN or leaked particles; strong
 //!   shock tubes stay finite with positive density and energy; the IISPH dam break to T = 10
 //!   with a converging pressure solve and at most 1% average density error.
@@ -371,29 +373,7 @@ fn neighbor_row<const D: usize>(n: usize, reps: usize, threads: usize) -> TaskRe
 
 fn bench_neighbors(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     let (n, reps) = if ctx.quick { (20_000, 3) } else { (100_000, 7) };
-    let mut rows = vec![neighbor_row::<2>(n, reps, ctx.threads)?, neighbor_row::<3>(n, reps, ctx.threads)?];
-    if !ctx.quick {
-        // Peers as reported in docs (measured on this machine by the method digest, 2 threads).
-        for (case, method, s) in [
-            ("neighbor_search_2d", "open3d_0.20_fixed_radius_search (reported)", 0.59),
-            ("neighbor_search_3d", "open3d_0.20_fixed_radius_search (reported)", 0.89),
-            ("neighbor_search_2d", "scipy_ckdtree_query_pairs (reported)", 0.16),
-            ("neighbor_search_3d", "scipy_ckdtree_query_pairs (reported)", 0.23),
-        ] {
-            rows.push(BenchRow {
-                case: case.into(),
-                method: method.into(),
-                size: "n100000_k40".into(),
-                seconds: s,
-                unit: "full CSR lists".into(),
-                error: None,
-                error_kind: String::new(),
-                peer: true,
-                threads: 2,
-            });
-        }
-    }
-    Ok(rows)
+    Ok(vec![neighbor_row::<2>(n, reps, ctx.threads)?, neighbor_row::<3>(n, reps, ctx.threads)?])
 }
 
 fn bench_sod(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {

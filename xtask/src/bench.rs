@@ -63,11 +63,13 @@ pub fn run(krate: Option<&str>, quick: bool) -> anyhow::Result<()> {
 fn peer_rows(dir: &std::path::Path, krate: &str) -> Vec<BenchRow> {
     let path = dir.join(format!("{krate}_peers.json"));
     if !path.is_file() {
-        if krate == "grid" {
-            eprintln!(
-                "bench: no peer results at {} (run `bench/peers/run.sh` to measure PhiFlow and JAX-CFD); peers skipped",
-                path.display()
-            );
+        let how = match krate {
+            "grid" => Some("`bench/peers/run.sh` measures PhiFlow and JAX-CFD"),
+            "particles" => Some("`bench/peers/particles_run.sh` measures SciPy, Open3D and PySPH"),
+            _ => None,
+        };
+        if let Some(how) = how {
+            eprintln!("bench: no peer results at {} ({how}); peers skipped", path.display());
         }
         return Vec::new();
     }
