@@ -162,11 +162,11 @@ def phiflow_tgv(n, backend):
         # Sampled at each component's own face centres. (PhiFlow 3.4 calls a function initialiser
         # with every face position of every component and cannot squeeze a vector result, so the
         # values are built here and attached with with_values.)
-        px = base.vector["x"].points.numpy("y,x,vector").astype(np.float64)
-        py = base.vector["y"].points.numpy("y,x,vector").astype(np.float64)
+        px = base.vector["x"].points.numpy("x,y,vector").astype(np.float64)
+        py = base.vector["y"].points.numpy("x,y,vector").astype(np.float64)
         u = np.sin(px[..., 0]) * np.cos(px[..., 1]) * d
         w = -np.cos(py[..., 0]) * np.sin(py[..., 1]) * d
-        comps = {"x": flow.math.tensor(u, flow.spatial("y,x")), "y": flow.math.tensor(w, flow.spatial("y,x"))}
+        comps = {"x": flow.math.tensor(u, flow.spatial("x,y")), "y": flow.math.tensor(w, flow.spatial("x,y"))}
         return base.with_values(flow.math.stack(comps, flow.math.dual("vector")))
 
     v0 = tgv(1.0)
