@@ -451,7 +451,14 @@ impl<T: Real, const D: usize> CellList<T, D> {
     /// Writes the neighbour lists of the particles of the last [`CellList::build`] into `out`
     /// (its buffers are reused).
     pub fn query(&mut self, out: &mut NeighborList) {
-        let n = self.order.len();
+        self.query_first(self.order.len(), out);
+    }
+
+    /// Like [`CellList::query`], but lists only the neighbours of the first `n` particles (all
+    /// particles are still candidates): `out` has `n` rows. For solvers whose other particles
+    /// (e.g. fixed walls) need no list of their own.
+    pub fn query_first(&mut self, n: usize, out: &mut NeighborList) {
+        let n = n.min(self.order.len());
         let nchunks = n.div_ceil(CHUNK);
         let mut chunks = std::mem::take(&mut self.chunks);
         chunks.resize_with(nchunks, Vec::new);

@@ -237,6 +237,8 @@ pub struct Wcsph<T: Real = f64> {
     drho: Vec<T>,
     v_half: Vec<[T; 2]>,
     rho_half: Vec<T>,
+    wall_w: Vec<T>,
+    wall_p: Vec<T>,
     n_fluid: usize,
     container: [[f64; 2]; 2],
     cells: CellList<T, 2>,
@@ -309,6 +311,8 @@ impl<T: Real> Wcsph<T> {
             drho: vec![T::zero(); n_fluid],
             v_half: Vec::with_capacity(n_fluid),
             rho_half: Vec::with_capacity(n_fluid),
+            wall_w: Vec::new(),
+            wall_p: Vec::new(),
             x,
             v,
             rho,
@@ -393,50 +397,41 @@ impl<T: Real> Wcsph<T> {
     fn evaluate(&mut self) -> Result<()> {
         let nf = self.n_fluid;
         let n = self.x.len();
-        self.cells.neighbors(&self.x, &mut self.nl)?;
+        // Only the fluid needs neighbour lists: a wall particle's sums below are scattered from
+        // the fluid lists (the search radius is symmetric, so it sees the same pairs).
+        self.cells.build(&self.x)?;
+        self.cells.query_first(nf, &mut self.nl);
         let (rho0, b) = (T::c(self.phys.rho0), T::c(self.b()));
         let (zero, one, seventh) = (T::zero(), T::one(), T::c(1.0 / 7.0));
         for i in 0..nf {
             let r = self.rho[i] / rho0;
             self.p[i] = b * (r.powi(7) - one);
         }
-        // Wall pressure and density extrapolated from the fluid (Adami et al. 2012).
+        // Wall pressure and density extrapolated from the fluid (Adami et al. 2012):
+        // p_w = sum_f (p_f + rho_f g.(x_w - x_f)) W_wf / sum_f W_wf.
         let dom = *self.cells.domain();
         let g = [T::c(self.phys.gravity[0]), T::c(self.phys.gravity[1])];
-        let (x, rho, nl, k) = (&self.x, &self.rho, &self.nl, &self.kernel);
-        let (p_fluid, p_wall) = self.p.split_at_mut(nf);
-        let wall_state: Vec<(T, T)> = (nf..n)
-            .into_par_iter()
-            .map(|w| {
-                let (mut sw, mut sp) = (zero, zero);
-                for &f in nl.neighbors(w) {
-                    let f = f as usize;
-                    if f >= nf {
-                        continue;
-                    }
-                    let d = dom.displacement(&x[f], &x[w]);
-                    let wk = k.w((d[0] * d[0] + d[1] * d[1]).sqrt());
-                    sw += wk;
-                    sp += (p_fluid[f] + rho[f] * (g[0] * d[0] + g[1] * d[1])) * wk;
+        self.wall_w.clear();
+        self.wall_w.resize(n - nf, zero);
+        self.wall_p.clear();
+        self.wall_p.resize(n - nf, zero);
+        for f in 0..nf {
+            for &w in self.nl.neighbors(f) {
+                let w = w as usize;
+                if w < nf {
+                    continue;
                 }
-                let pw = if sw > zero {
-                    {
-                        let pw = sp / sw;
-                        if pw > zero {
-                            pw
-                        } else {
-                            zero
-                        }
-                    }
-                } else {
-                    zero
-                };
-                (pw, rho0 * (pw / b + one).powf(seventh))
-            })
-            .collect();
-        for (k, (pw, rw)) in wall_state.into_iter().enumerate() {
-            p_wall[k] = pw;
-            self.rho[nf + k] = rw;
+                let d = dom.displacement(&self.x[f], &self.x[w]);
+                let wk = self.kernel.w((d[0] * d[0] + d[1] * d[1]).sqrt());
+                self.wall_w[w - nf] += wk;
+                self.wall_p[w - nf] += (self.p[f] + self.rho[f] * (g[0] * d[0] + g[1] * d[1])) * wk;
+            }
+        }
+        for k in 0..n - nf {
+            let (sw, sp) = (self.wall_w[k], self.wall_p[k]);
+            let pw = if sw > zero { (sp / sw).fmax(zero) } else { zero };
+            self.p[nf + k] = pw;
+            self.rho[nf + k] = rho0 * (pw / b + one).powf(seventh);
         }
         // Fluid accelerations and density rates.
         let (x, v, rho, p, nl, k) = (&self.x, &self.v, &self.rho, &self.p, &self.nl, &self.kernel);

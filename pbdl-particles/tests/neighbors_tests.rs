@@ -95,3 +95,24 @@ fn bad_input_is_a_typed_error() {
     c.neighbors(&[], &mut nl).unwrap();
     assert!(nl.is_empty());
 }
+
+/// `query_first(n)` lists the first `n` particles' neighbours among all particles: equal to the
+/// first `n` rows of the brute-force lists (periodic 2D box, so wrapped pairs are included).
+#[test]
+fn query_first_equals_the_first_rows_of_brute_force() {
+    let pos = random_points::<2>(600, [0.0; 2], [1.0; 2], 0.0, 11);
+    let domain = Domain::periodic([0.0; 2], [1.0; 2]);
+    let radius = 0.08;
+    let mut reference = brute_force(&domain, radius, &pos);
+    reference.sort_rows();
+    let mut cells = CellList::new(domain, radius).unwrap();
+    let mut nl = NeighborList::default();
+    cells.build(&pos).unwrap();
+    cells.query_first(250, &mut nl);
+    nl.sort_rows();
+    assert_eq!(nl.len(), 250);
+    for i in 0..250 {
+        assert_eq!(nl.neighbors(i), reference.neighbors(i), "row {i}");
+    }
+    assert!(nl.num_entries() > 250, "too few pairs to mean anything: {}", nl.num_entries());
+}
