@@ -1,6 +1,6 @@
 //! # pbdl-grid
 //!
-//! Differentiable Eulerian solvers on uniform 2D grids: fields whose staggering is in the type
+//! Differentiable Eulerian solvers on uniform 2D grids (and 3D: [`grid3d`]): fields whose staggering is in the type
 //! and whose boundary conditions travel with them, finite-difference operators, advection,
 //! diffusion and pressure projection as candle custom ops with hand-written adjoints, and an
 //! incompressible Navier-Stokes stepper built from those parts.
@@ -22,6 +22,7 @@
 //! | [`forcing`] | [`forcing::buoyancy`] (Boussinesq), [`forcing::DensitySource`], [`forcing::VelocitySource`] |
 //! | [`fluid`] | [`Fluid`]: smoke plume / obstacle-flow stepper (semi-Lagrangian or MacCormack, buoyancy, inflow, implicit viscosity, obstacles), listing its operators |
 //! | [`navier_stokes`] | [`NavierStokes`]: a stepper built from a config, listing its operators |
+//! | [`grid3d`] | 3D: [`grid3d::MacField3d`], flux-form advection, FFT projection (periodic) and MIC(0)-CG projection (walled box, [`grid3d::Cavity3d`]), [`grid3d::NavierStokes3d`] (RK4, projection per stage), the ABC exact solution |
 //! | [`error`] | [`Error`], [`Result`] |
 //! | [`mod@tasks`] | [`tasks()`]: the `cargo xtask` tour (Taylor-Green, cavity, Burgers, smoke plume, Karman street), bench and stress entries |
 //!
@@ -52,6 +53,7 @@ pub mod fd;
 pub mod field;
 pub mod fluid;
 pub mod forcing;
+pub mod grid3d;
 mod laplacian_matrix;
 pub mod navier_stokes;
 pub mod obstacle;

@@ -1,0 +1,117 @@
+//! Incompressible Navier-Stokes in the closed 3D box of [`super::walls`] (lid-driven cavity):
+//! the walled flux-form right-hand side and the MIC(0)-CG projection after every Runge-Kutta
+//! stage, through the generic [`projected_runge_kutta`].
+
+use super::cg::{CgBox3d, WallProjection};
+use super::field::MacField3d;
+use super::momentum::check_nu;
+use super::stability::{check_time_step, stable_time_step};
+use super::walls::{CavityWalls, WallMomentumRhs};
+use super::{Grid3d, NavierStokes3dConfig};
+use crate::pressure::CgSettings;
+use crate::stability::StabilityReport;
+use crate::time_stepping::{projected_runge_kutta, ButcherTableau, Scheme};
+use crate::{Error, Result};
+use std::sync::Arc;
+
+/// A built 3D lid-driven-cavity stepper.
+pub struct Cavity3d {
+    grid: Grid3d,
+    walls: CavityWalls,
+    config: NavierStokes3dConfig,
+    tableau: ButcherTableau,
+    rhs: WallMomentumRhs,
+    projection: WallProjection,
+    operators: Vec<&'static str>,
+}
+
+impl std::fmt::Debug for Cavity3d {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Cavity3d")
+            .field("grid", &self.grid)
+            .field("walls", &self.walls)
+            .field("config", &self.config)
+            .field("operators", &self.operators)
+            .finish()
+    }
+}
+
+impl Cavity3d {
+    /// Builds the stepper: validates the parameters, refuses a `dt` beyond the diffusive limit,
+    /// sets up the CG pressure solver.
+    pub fn new(grid: Grid3d, walls: CavityWalls, config: NavierStokes3dConfig, cg: CgSettings) -> Result<Self> {
+        grid.validate()?;
+        walls.validate()?;
+        check_nu(config.nu)?;
+        let tableau = config.scheme.tableau();
+        tableau.validate()?;
+        check_time_step(&grid, [walls.lid_velocity.abs(), 0.0, 0.0], config.nu, &tableau, config.dt)?;
+        let projection = WallProjection { solver: CgBox3d::new(grid, cg)? };
+        let rhs = WallMomentumRhs { grid, walls, advect: true, nu: config.nu };
+        let mut operators = vec!["grid3d.advect.flux_form_walls"];
+        if config.nu > 0.0 {
+            operators.push("grid3d.diffuse.explicit");
+        }
+        operators.push("grid3d.pressure.mic0_cg");
+        operators.push(match config.scheme {
+            Scheme::Rk4 => "time_stepping.rk4",
+            Scheme::SspRk3 => "time_stepping.ssp_rk3",
+            Scheme::ForwardEuler => "time_stepping.forward_euler",
+        });
+        Ok(Self { grid, walls, config, tableau, rhs, projection, operators })
+    }
+
+    /// The operators this stepper runs.
+    pub fn operators(&self) -> &[&'static str] {
+        &self.operators
+    }
+
+    /// The pressure solver (shared).
+    pub fn solver(&self) -> &Arc<CgBox3d> {
+        &self.projection.solver
+    }
+
+    /// The largest stable time step for the largest speeds `[|u|, |v|, |w|]` (the lid speed is
+    /// included in `|u|`).
+    pub fn stable_time_step(&self, max_speed: [f64; 3]) -> f64 {
+        let s = [max_speed[0].max(self.walls.lid_velocity.abs()), max_speed[1], max_speed[2]];
+        stable_time_step(&self.grid, s, self.config.nu, &self.tableau)
+    }
+
+    /// Checks that `dt` is stable for `u` (and the lid).
+    pub fn check(&self, u: &MacField3d) -> Result<StabilityReport> {
+        let m = u.max_abs_components()?;
+        let s = [m[0].max(self.walls.lid_velocity.abs()), m[1], m[2]];
+        check_time_step(&self.grid, s, self.config.nu, &self.tableau, self.config.dt)
+    }
+
+    /// Projects `u` (use once on an initial condition).
+    pub fn project(&self, u: &MacField3d) -> Result<MacField3d> {
+        self.check_field(u)?;
+        Ok(MacField3d::from_parts(self.projection.apply(u.values())?, self.grid))
+    }
+
+    /// One time step; refuses an unstable `dt` or a non-finite `u` (typed errors).
+    pub fn step(&self, u: &MacField3d) -> Result<MacField3d> {
+        self.check_field(u)?;
+        self.check(u)?;
+        let out = projected_runge_kutta(
+            u.values(),
+            self.config.dt,
+            &self.tableau,
+            |x| Ok(self.rhs.apply(x)?),
+            |x| Ok(self.projection.apply(x)?),
+        )?;
+        Ok(MacField3d::from_parts(out, self.grid))
+    }
+
+    fn check_field(&self, u: &MacField3d) -> Result<()> {
+        if u.grid() != &self.grid {
+            return Err(Error::Invalid {
+                field: "u",
+                reason: format!("the field lives on {:?}; the stepper was built for {:?}", u.grid(), self.grid),
+            });
+        }
+        Ok(())
+    }
+}

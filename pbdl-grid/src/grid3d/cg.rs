@@ -1,0 +1,339 @@
+//! Pressure projection in the closed box ([`super::walls`]) by MIC(0)-preconditioned conjugate
+//! gradients on the seven-point Neumann Laplacian: the 3D extension of
+//! [`crate::pressure::CgPressureSolver`]'s method, on a structured matrix (never assembled).
+//!
+//! `A = G^T G = -D G` over all cells (a neighbour across a wall is dropped: zero normal velocity,
+//! Neumann pressure), symmetric positive semi-definite with the constants as null space: the
+//! right-hand side and each preconditioned residual are projected onto zero mean.
+//! MIC(0) is Bridson's `M = (E + L) E^-1 (E + L)^T`, compensation `tau`, pivot floor
+//! `0.25 A_ii`, in lexicographic order (x fastest).
+//!
+//! On the interior faces `D = -G^T`, so the projection `u - G A^+ (-D u)` is symmetric and its
+//! backward is one more projection of the cotangent (with the same tolerance). The recursive CG
+//! residual is exactly the divergence left behind: `||D P u||_2 <= rel_tol ||D u||_2`.
+
+use super::field::MacField3d;
+use super::momentum::check_shape;
+use super::walls::{unit, WallGeom};
+use super::{CavityWalls, Grid3d};
+use crate::pressure::{CgPreconditioner, CgSettings, CgStats};
+use crate::{Error, Result};
+use candle_core::{Shape, Tensor};
+use pbdl_core::op::{apply1, Kernel1, Op1};
+use pbdl_core::Real;
+use std::sync::Arc;
+
+/// The pivot floor of MIC(0), as a fraction of the diagonal (as in 2D).
+const PIVOT_FLOOR: f64 = 0.25;
+
+/// The Neumann pressure solve of a closed 3D box by preconditioned CG; build once, share.
+#[derive(Debug)]
+pub struct CgBox3d {
+    grid: Grid3d,
+    settings: CgSettings,
+    /// `1 / h^2` per axis.
+    w: [f64; 3],
+    diag: Vec<f64>,
+    inv_pivot: Vec<f64>,
+}
+
+impl CgBox3d {
+    /// Sets up the matrix diagonal and the preconditioner for `grid`.
+    pub fn new(grid: Grid3d, settings: CgSettings) -> Result<Arc<Self>> {
+        grid.validate()?;
+        if !(settings.rel_tol > 0.0 && settings.rel_tol < 1.0) {
+            return Err(Error::Invalid {
+                field: "rel_tol",
+                reason: format!("{} is not in (0, 1); use e.g. 1e-8", settings.rel_tol),
+            });
+        }
+        if settings.max_iter == 0 {
+            return Err(Error::Invalid { field: "max_iter", reason: "0 iterations; use e.g. 2000".into() });
+        }
+        if let CgPreconditioner::Mic0 { tau } = settings.preconditioner {
+            if !(0.0..=1.0).contains(&tau) {
+                return Err(Error::Invalid { field: "tau", reason: format!("{tau} is not in [0, 1]; use 0.97") });
+            }
+        }
+        let w = grid.spacing().map(|h| 1.0 / (h * h));
+        let mut s = Self { grid, settings, w, diag: Vec::new(), inv_pivot: Vec::new() };
+        let geo = s.geo();
+        s.diag = (0..grid.cells())
+            .map(|m| {
+                let p = geo.pos(m);
+                (0..3).map(|a| w[a] * ((p[a] > 0) as usize + (p[a] + 1 < geo.n[a] as isize) as usize) as f64).sum()
+            })
+            .collect();
+        s.inv_pivot = s.pivots();
+        Ok(Arc::new(s))
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> &Grid3d {
+        &self.grid
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &CgSettings {
+        &self.settings
+    }
+
+    fn geo(&self) -> WallGeom {
+        WallGeom::new(&self.grid, &CavityWalls { lid_velocity: 0.0 })
+    }
+
+    /// Flat strides of the axes.
+    fn strides(&self) -> [usize; 3] {
+        [1, self.grid.nx, self.grid.nx * self.grid.ny]
+    }
+
+    fn pivots(&self) -> Vec<f64> {
+        let (geo, st, n) = (self.geo(), self.strides(), self.grid.cells());
+        let tau = match self.settings.preconditioner {
+            CgPreconditioner::Jacobi => return self.diag.iter().map(|d| 1.0 / d).collect(),
+            CgPreconditioner::Mic0 { tau } => tau,
+        };
+        // Upper off-diagonal row sums `sum_{k > m} A_mk`.
+        let upper_sum: Vec<f64> = (0..n)
+            .map(|m| {
+                let p = geo.pos(m);
+                -(0..3).filter(|&a| p[a] + 1 < geo.n[a] as isize).map(|a| self.w[a]).sum::<f64>()
+            })
+            .collect();
+        let mut inv = vec![0.0; n];
+        for m in 0..n {
+            let p = geo.pos(m);
+            let mut e = self.diag[m];
+            for a in (0..3).filter(|&a| p[a] > 0) {
+                let (j, v) = (m - st[a], -self.w[a]);
+                e -= v * v * inv[j];
+                e -= tau * v * (upper_sum[j] - v) * inv[j];
+            }
+            if e < PIVOT_FLOOR * self.diag[m] {
+                e = self.diag[m];
+            }
+            inv[m] = 1.0 / e;
+        }
+        inv
+    }
+
+    fn matvec(&self, x: &[f64], y: &mut [f64]) {
+        let (geo, st) = (self.geo(), self.strides());
+        for (m, ym) in y.iter_mut().enumerate() {
+            let p = geo.pos(m);
+            let mut s = self.diag[m] * x[m];
+            for a in 0..3 {
+                if p[a] > 0 {
+                    s -= self.w[a] * x[m - st[a]];
+                }
+                if p[a] + 1 < geo.n[a] as isize {
+                    s -= self.w[a] * x[m + st[a]];
+                }
+            }
+            *ym = s;
+        }
+    }
+
+    fn precondition(&self, r: &[f64], z: &mut [f64]) {
+        let (geo, st) = (self.geo(), self.strides());
+        match self.settings.preconditioner {
+            CgPreconditioner::Jacobi => {
+                for ((zi, ri), d) in z.iter_mut().zip(r).zip(&self.inv_pivot) {
+                    *zi = ri * d;
+                }
+            }
+            CgPreconditioner::Mic0 { .. } => {
+                // (E + L) y = r, then (E + L)^T z = E y.
+                for m in 0..z.len() {
+                    let p = geo.pos(m);
+                    let mut s = r[m];
+                    for a in (0..3).filter(|&a| p[a] > 0) {
+                        s += self.w[a] * z[m - st[a]];
+                    }
+                    z[m] = s * self.inv_pivot[m];
+                }
+                for m in (0..z.len()).rev() {
+                    let p = geo.pos(m);
+                    let mut s = 0.0;
+                    for a in (0..3).filter(|&a| p[a] + 1 < geo.n[a] as isize) {
+                        s += self.w[a] * z[m + st[a]];
+                    }
+                    z[m] += s * self.inv_pivot[m];
+                }
+            }
+        }
+        remove_mean(z);
+    }
+
+    /// `x = A^+ b` from a zero start (`b`'s mean is removed first; `x` has zero mean).
+    /// Non-convergence within `max_iter` is an [`Error::Solver`] naming the residual reached.
+    pub fn solve(&self, b: &mut [f64], x: &mut [f64]) -> Result<CgStats> {
+        let n = self.grid.cells();
+        if b.len() != n || x.len() != n {
+            return Err(Error::Shape {
+                op: "CgBox3d::solve",
+                arg: "b/x",
+                expected: format!("{n} values each (nz * ny * nx)"),
+                got: vec![b.len(), x.len()],
+            });
+        }
+        remove_mean(b);
+        x.fill(0.0);
+        let bnorm = dot(b, b).sqrt();
+        if bnorm == 0.0 {
+            return Ok(CgStats { iterations: 0, rel_residual: 0.0 });
+        }
+        let target = self.settings.rel_tol * bnorm;
+        let mut r = b.to_vec();
+        let (mut z, mut q) = (vec![0.0; n], vec![0.0; n]);
+        self.precondition(&r, &mut z);
+        let mut d = z.clone();
+        let mut rz = dot(&r, &z);
+        let mut rnorm = bnorm;
+        for it in 1..=self.settings.max_iter {
+            self.matvec(&d, &mut q);
+            let dq = dot(&d, &q);
+            if !(dq > 0.0 && rz.is_finite()) {
+                return Err(self.not_converged(it, rnorm / bnorm, "the search direction lost positive curvature"));
+            }
+            let alpha = rz / dq;
+            for ((xi, ri), (di, qi)) in x.iter_mut().zip(r.iter_mut()).zip(d.iter().zip(&q)) {
+                *xi += alpha * di;
+                *ri -= alpha * qi;
+            }
+            rnorm = dot(&r, &r).sqrt();
+            if rnorm <= target {
+                remove_mean(x);
+                return Ok(CgStats { iterations: it, rel_residual: rnorm / bnorm });
+            }
+            self.precondition(&r, &mut z);
+            let rz_new = dot(&r, &z);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for (di, zi) in d.iter_mut().zip(&z) {
+                *di = zi + beta * *di;
+            }
+        }
+        Err(self.not_converged(self.settings.max_iter, rnorm / bnorm, "raise max_iter or loosen rel_tol"))
+    }
+
+    fn not_converged(&self, iterations: usize, rel: f64, hint: &str) -> Error {
+        Error::Solver {
+            solver: "grid3d box pressure cg",
+            reason: format!(
+                "not converged after {iterations} iterations: relative residual {rel:.3e} > rel_tol {:.1e}; {hint}",
+                self.settings.rel_tol
+            ),
+        }
+    }
+
+    /// Projects one `[3, nz, ny, nx]` slice (f64) in place: wall faces to 0, then `u - G A^+ (-D u)`.
+    fn project_slice(&self, u: &mut [f64]) -> Result<CgStats> {
+        let geo = self.geo();
+        let n = geo.cells();
+        let st = self.strides();
+        let ih = self.grid.spacing().map(|h| 1.0 / h);
+        for c in 0..3 {
+            for m in 0..n {
+                if geo.is_wall_face(c, geo.pos(m)) {
+                    u[c * n + m] = 0.0;
+                }
+            }
+        }
+        // b = -D u (the system is A p = -D u with A = -D G).
+        let mut b = vec![0.0; n];
+        for (m, bm) in b.iter_mut().enumerate() {
+            let p = geo.pos(m);
+            let mut div = 0.0;
+            for a in 0..3 {
+                let back = if p[a] > 0 { u[a * n + m - st[a]] } else { 0.0 };
+                div += (u[a * n + m] - back) * ih[a];
+            }
+            *bm = -div;
+        }
+        let mut p = vec![0.0; n];
+        let stats = self.solve(&mut b, &mut p)?;
+        for a in 0..3 {
+            let e = unit(a);
+            for m in 0..n {
+                let pos = geo.pos(m);
+                if !geo.is_wall_face(a, pos) {
+                    let up = m + st[a];
+                    debug_assert_eq!(geo.pos(up)[a], pos[a] + e[a]);
+                    u[a * n + m] -= (p[up] - p[m]) * ih[a];
+                }
+            }
+        }
+        Ok(stats)
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+fn remove_mean(x: &mut [f64]) {
+    let m = x.iter().sum::<f64>() / x.len() as f64;
+    x.iter_mut().for_each(|v| *v -= m);
+}
+
+/// Projects `u` in the closed box onto discretely divergence-free fields with zero normal
+/// velocity on the walls (wall faces set to 0). Differentiable (the backward is the same
+/// projection of the cotangent). Non-convergence of CG is an error.
+pub fn make_incompressible_walls(u: &MacField3d, solver: &Arc<CgBox3d>) -> Result<MacField3d> {
+    if u.grid() != &solver.grid {
+        return Err(Error::Invalid {
+            field: "solver",
+            reason: format!(
+                "built for {:?}, the field lives on {:?}; build it with CgBox3d::new(grid, ..)",
+                solver.grid,
+                u.grid()
+            ),
+        });
+    }
+    let op = WallProjection { solver: solver.clone() };
+    Ok(MacField3d::from_parts(op.apply(u.values())?, *u.grid()))
+}
+
+/// The walled projection as a custom op (computed in f64, returned in the input's dtype).
+#[derive(Clone)]
+pub(crate) struct WallProjection {
+    pub solver: Arc<CgBox3d>,
+}
+
+impl WallProjection {
+    pub(crate) fn apply(&self, u: &Tensor) -> candle_core::Result<Tensor> {
+        apply1(u, self.clone())
+    }
+}
+
+impl Kernel1 for WallProjection {
+    fn name(&self) -> &'static str {
+        "grid3d_make_incompressible_walls"
+    }
+    fn output_shape(&self, s: &Shape) -> candle_core::Result<Shape> {
+        check_shape(self.name(), s, &self.solver.grid)?;
+        Ok(s.clone())
+    }
+    fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+        let n = self.solver.grid.cells();
+        let mut w = vec![0.0f64; 3 * n];
+        for (xb, ob) in x.chunks(3 * n).zip(out.chunks_mut(3 * n)) {
+            for (a, &b) in w.iter_mut().zip(xb) {
+                *a = <T as candle_core::WithDType>::to_f64(b);
+            }
+            self.solver.project_slice(&mut w)?;
+            for (o, &a) in ob.iter_mut().zip(&w) {
+                *o = T::c(a);
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Op1 for WallProjection {
+    fn backward(&self, _x: &Tensor, _y: &Tensor, gy: &Tensor) -> candle_core::Result<Tensor> {
+        // Symmetric on the interior faces, zero on the wall faces in and out: P^T = P.
+        self.apply(gy)
+    }
+}
