@@ -198,15 +198,30 @@ pub fn max_abs_components(t: &Tensor) -> Result<[f64; 2]> {
     let start = layout.start_offset();
     let mut m = [0.0f64; 2];
     let mut bad = None;
-    fn scan<T: Copy + Into<f64>>(s: &[T], m: &mut f64, bad: &mut Option<f64>) {
-        for &x in s {
-            let x: f64 = x.into();
-            if !x.is_finite() {
-                *bad = Some(x);
-                return;
+    // Branch-free over 8 lanes so that it vectorises: `x * 0` is 0 for finite x and NaN for
+    // Inf/NaN, so a non-finite value shows up in the `poison` sums; the first one is then
+    // looked up (the error path only).
+    fn scan<T: pbdl_core::Real + Into<f64>>(s: &[T], m: &mut f64, bad: &mut Option<f64>) {
+        let (mut mx, mut poison) = ([T::zero(); 8], [T::zero(); 8]);
+        let chunks = s.chunks_exact(8);
+        let tail = chunks.remainder();
+        for c in chunks {
+            for k in 0..8 {
+                let a = c[k].abs();
+                mx[k] = if a > mx[k] { a } else { mx[k] };
+                poison[k] += c[k] * T::zero();
             }
-            *m = m.max(x.abs());
         }
+        for (k, &x) in tail.iter().enumerate() {
+            let a = x.abs();
+            mx[k] = if a > mx[k] { a } else { mx[k] };
+            poison[k] += x * T::zero();
+        }
+        if poison.iter().any(|p| !p.is_finite() || *p != T::zero()) {
+            *bad = s.iter().map(|&x| x.into()).find(|x: &f64| !x.is_finite());
+            return;
+        }
+        *m = mx.iter().fold(*m, |a, &x| a.max(x.into()));
     }
     for bi in 0..b {
         for ci in 0..c.min(2) {

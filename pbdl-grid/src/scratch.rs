@@ -45,6 +45,15 @@ pub(crate) fn zeros<T: pbdl_core::Real>(len: usize) -> Buf<T> {
     b
 }
 
+/// [`take`] for a kernel's float type (`f32` or `f64`, checked at run time), contents arbitrary:
+/// for buffers the caller overwrites completely before reading (saves the fill of [`zeros`]).
+pub(crate) fn uninit<T: pbdl_core::Real>(len: usize) -> Buf<T> {
+    use std::any::TypeId;
+    let t = TypeId::of::<T>();
+    assert!(t == TypeId::of::<f32>() || t == TypeId::of::<f64>(), "scratch: f32 or f64 only");
+    take_unchecked::<T>(len)
+}
+
 /// The pool itself; `E` must be plain data (see [`Pod`]).
 fn take_unchecked<E: Copy + 'static>(len: usize) -> Buf<E> {
     assert!(std::mem::align_of::<E>() <= 8);

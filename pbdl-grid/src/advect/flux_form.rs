@@ -5,7 +5,7 @@ use crate::boundary::MacGhosts;
 use crate::fd::dims4;
 use crate::field::MacField;
 use crate::pad::{for_rows, pad, pad_adjoint, PAR_CELLS};
-use crate::scratch::zeros;
+use crate::scratch::uninit;
 use crate::{Grid, Result};
 use candle_core::{Shape, Tensor};
 use pbdl_core::op::{apply1, apply_kernel2, Kernel1, Kernel2, Op1};
@@ -73,8 +73,9 @@ impl Kernel1 for MomentumRhs {
         let (n, w) = (nx * ny, nx + 2);
         let k = self.coef::<T>();
         let two = T::c(2.0);
-        let mut up = zeros::<T>(w * (ny + 2));
-        let mut vp = zeros::<T>(w * (ny + 2));
+        // `pad` writes every element of the padded buffers.
+        let mut up = uninit::<T>(w * (ny + 2));
+        let mut vp = uninit::<T>(w * (ny + 2));
         let (u_fixed, v_fixed) = (self.ghosts.u_fixed.is_some(), self.ghosts.v_fixed.is_some());
         for (xb, ob) in x.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
             pad(&xb[..n], nx, ny, &self.ghosts.u, true, &mut up);

@@ -89,8 +89,13 @@ where
         if par {
             spec_t.par_chunks_mut(ny).enumerate().for_each_init(init_c, |s, x| cols(x, s));
         } else {
+            // All columns in one call each way: rustfft's batched path is faster than per-column calls.
             let mut s = init_c();
-            spec_t.chunks_mut(ny).enumerate().for_each(|x| cols(x, &mut s));
+            self.fwd.process_with_scratch(&mut spec_t, &mut s);
+            for (c, &e) in spec_t.iter_mut().zip(&self.inv_eig[..]) {
+                *c = *c * e;
+            }
+            self.inv.process_with_scratch(&mut spec_t, &mut s);
         }
         transpose(&spec_t, nh, ny, &mut spec, par);
         // Rows back: half spectrum -> real. Round-off can leave imaginary parts on the real bins.
@@ -111,16 +116,28 @@ where
     }
 }
 
-/// `dst[c][r] = src[r][c]` for a `rows x cols` matrix.
+/// `dst[c][r] = src[r][c]` for a `rows x cols` matrix, in `TILE x TILE` blocks so that both
+/// the reads and the writes stay within a few cache lines (a plain column loop strides through
+/// `dst` and was ~9% of a 128^2 Navier-Stokes step).
 fn transpose<T: Copy + Send + Sync>(src: &[T], rows: usize, cols: usize, dst: &mut [T], par: bool) {
-    let f = |(c, d): (usize, &mut [T])| {
-        for r in 0..rows {
-            d[r] = src[r * cols + c];
+    const TILE: usize = 16;
+    // One band = TILE destination rows (source columns), all source rows.
+    let band = |(b, d): (usize, &mut [T])| {
+        let c0 = b * TILE;
+        let nc = d.len() / rows;
+        for r0 in (0..rows).step_by(TILE) {
+            let r1 = (r0 + TILE).min(rows);
+            for c in 0..nc {
+                let drow = &mut d[c * rows..(c + 1) * rows];
+                for r in r0..r1 {
+                    drow[r] = src[r * cols + c0 + c];
+                }
+            }
         }
     };
     if par {
-        dst.par_chunks_mut(rows).enumerate().for_each(f);
+        dst.par_chunks_mut(TILE * rows).enumerate().for_each(band);
     } else {
-        dst.chunks_mut(rows).enumerate().for_each(f);
+        dst.chunks_mut(TILE * rows).enumerate().for_each(band);
     }
 }

@@ -5,7 +5,7 @@ use crate::boundary::{Ghosts, MacGhosts};
 use crate::fd::{div_padded, div_padded_adjoint, grad_padded, grad_padded_adjoint};
 use crate::field::MacField;
 use crate::pad::{pad, pad_adjoint};
-use crate::scratch::{zeros, Buf};
+use crate::scratch::{uninit, zeros, Buf};
 use crate::{Error, Grid, Result};
 use candle_core::{Shape, Tensor};
 use pbdl_core::op::{apply1, apply_kernel1, Kernel1, Op1};
@@ -195,7 +195,7 @@ impl pbdl_core::op::Kernel3 for CombineProject {
                 Ok(())
             }
             Some(p) => {
-                let mut comb = zeros::<T>(a.len());
+                let mut comb = uninit::<T>(a.len());
                 for ((o, &x), (&y, &z)) in comb.iter_mut().zip(a).zip(b.iter().zip(c)) {
                     *o = x + w1 * y + w2 * z;
                 }
