@@ -24,8 +24,8 @@
 //!    alone cannot stop a density-deficient particle (spray, a broken-up film): its extrapolated
 //!    wall pressure is 0 and its summation density reaches `ρ0` only about `0.25 dx` behind
 //!    the surface. [`Iisph::wall_corrections`] and [`Iisph::max_penetration`] report how often
-//!    and how deep (the dam break to T = 4: 18 corrections in 2.9e5 particle steps, deepest
-//!    0.13 dx; to T = 10: 307, deepest 0.31 dx, still short of the first wall layer at 0.5 dx).
+//!    and how deep (the dam break to T = 4: 40 corrections in 2.7e5 particle steps, deepest
+//!    0.07 dx; to T = 10: 416, deepest 0.34 dx, still short of the first wall layer at 0.5 dx).
 //!
 //! The source term removes the density error already present over the stable step:
 //! `s_i = min(1, dt/dt_stable) (ρ0 - ρ_i) - dt Σ_j m_j v*_ij·∇W_ij`, which is Ihmsen's `ρ0 - ρ*_i`
@@ -39,6 +39,61 @@
 //! [`IisphParams::tolerance`] after at least two iterations; otherwise it reports
 //! [`Error::SolverNotConverged`] with the residual and leaves the state unchanged.
 //!
+//! ## Lattice stability (why `h = 1.385 dx`)
+//!
+//! The symmetric pressure force is the constraint force of `ρ_i(x) = ρ0`: with `λ_i = m p_i/ρ_i²`,
+//! `-Σ_i λ_i ∇ρ_i` is exactly `a^p`. Linearised about a lattice at rest under a pressure `p`, the
+//! motions that keep every density (`δρ_i = 0`) feel the stiffness `Σ_i λ_i ∇∇ρ_i`, i.e. that of
+//! the repulsive pair potential `2 m² p/ρ² W(r)`; the pressure solve cannot resist them, since they
+//! change no density. A Fourier analysis of a periodic lattice (modes `e^{i k·x}`, polarisation
+//! orthogonal to the density change `Σ_j ∇W_j sin(k·x_j)`) gives their growth rate
+//! `σ² = s p / (ρ0 dx²)`; for Wendland C2 on the square lattice `s = 0.061` at `h = 1.3 dx`, at
+//! `k = (π/dx, 0)` (neighbouring vertical particle lines slide against each other), and `s = 0` for
+//! `1.375 <= h/dx <= 1.395`, where the hexagonal lattice is stable too (`s = 0` for `1.15..1.41`).
+//! The rate grows as `1/dx` at a given depth, which is why the drift of a water column at rest grew
+//! with resolution at `h = 1.3 dx`: mean speed after 1 s 1.27e-2 / 1.52e-2 / 2.32e-2 `sqrt(gH)` at
+//! `dx = 0.1 / 0.05 / 0.025 a`, growing exponentially from the round-off of the first steps (at
+//! tolerance 1e-5: 6.8e-4 at 0.2 s, 6.6e-3 at 0.5 s, 1.48e-2 at 1 s), independent of the
+//! tolerance (1e-3..1e-5) and of dt (0.005 or 0.001 s). Other choices checked: `h = 1.0 dx` (8 neighbours, square lattice stable,
+//! hexagonal not) 3.3e-3 after 1 s; `h = 2.0 dx` diverged in the Jacobi solve (there the largest
+//! eigenvalue of `D⁻¹A` on the lattice is 5.7, above `2/ω = 4`; 2.9 at `h = 1.385 dx`); Wendland C4
+//! is unstable on the square lattice for every `h <= 2.4 dx`. With `h = 1.385 dx` the interior of
+//! the column stays on its lattice (after 1 s the middle row has moved by 0.005 dx on average and
+//! the bottom row by 0.002 dx, against 0.03 / 0.45 dx at `h = 1.3 dx`), and the mean speed stays at
+//! 4.9e-3 (`dx = 0.05 a`) and 7.7e-3 (`dx = 0.1 a`) `sqrt(gH)` instead of growing
+//! (`tests/iisph_tests.rs`; 1.6e-3 at `dx = 0.025 a`, where the default cap of 200 iterations is
+//! too low: step 5 needs 594, see below). What remains has two parts. First, the stopping rule: an
+//! average density error of 1e-3 is met while the pressure, warm-started from half the previous
+//! one, is still far from hydrostatic, so the column sags for a few steps and then rebounds (at
+//! `dx = 0.025 a` the first four steps stop after 2 iterations and the mean speed reaches 3.3e-2
+//! `sqrt(gH)` at t = 0.025 s). At `dx = 0.05 a` the speed after 1 s is 3.1e-3 / 4.0e-3 / 4.9e-3 /
+//! 7.1e-2 `sqrt(gH)` at tolerances 1e-4 / 5e-4 / 1e-3 / 2e-3, and 4.9e-3 / 5.6e-3 / 7.6e-3 / 6.2e-3
+//! at `dt_max` 0.005 / 0.004 / 0.003 / 0.0025 s (tolerance 1e-3): the 0.5% bound is met at the
+//! defaults with little margin. A full warm start (factor 1) is worse: it keeps the last step's
+//! density correction and the column rises (7.3e-2 at `h = 1.4 dx`). Second, the free surface: the
+//! top three rows rearrange by 0.2 to 0.6 dx (mean speed 1.4e-2 to 1.8e-2 `sqrt(gH)` in the top
+//! tenth of the column, 2e-3 to 5e-3 below). Their summation density lacks the neighbours above, so
+//! the clamped solve gives the top two rows `p = 0`: they rest on the pressure of the rows below
+//! like balls stacked on top of each other and slide into the hollows. This does not depend on the
+//! step (3.1e-3 and 3.2e-3 at dt 0.005 and 0.0025 s, tolerance 1e-4). A source term that corrects
+//! compression only, `relax · min(ρ0 - ρ_i, 0) - dt Σ_j m_j v*_ij·∇W_ij`, holds those rows by their
+//! own pressure and kept the column at 4.3e-4 `sqrt(gH)`, but it also makes density-deficient spray
+//! resist approach at kernel range: in the dam break the corner impact threw particles at 9.5 m/s
+//! (1.5 times `sqrt(2gH)`, T = 2.98), the velocities blew up and the solve failed before T = 6,
+//! with ω = 0.5, 0.3 or 0.2; it is not used.
+//!
+//! ## The dam-break front
+//!
+//! The inviscid surge front leads Martin & Moyce (1952) by +16.9 / +12.2 / +13.4 / +10.8% at
+//! T = 1.21 / 1.60 / 2.00 / 2.28 (+17.0 / +12.6 / +13.9 / +11.2% at `h = 1.3 dx`), the WCSPH
+//! solver by +11.5 / +5.8 / +5.6 / +2.2%. The pressure solve does not add energy: from T = 0.5
+//! on the kinetic energy stays at least 1.1% below the potential energy released (asserted in
+//! `tests/iisph_tests.rs`). The difference is viscosity: WCSPH's artificial viscosity
+//! (`α = 0.15`, `ν ≈ α h c0 / 8 = 0.054 m²/s` for approaching pairs) against none here; with
+//! `nu = 0.005` the IISPH front leads by +12.8 / +7.4 / +8.5 / +5.7%, with `nu = 0.054` by
+//! +6.0 / -0.5 / -1.4 / -4.9%. Water's 1e-6 m²/s changes nothing at this scale, so the
+//! inviscid lead is the model's, not a defect of the solve.
+//!
 //! The particle mass is `m = ρ0 / Σ_k W(|x_k|)` over the particle lattice, so that a particle
 //! with full support at rest has exactly `ρ0` (the volume definition of Akinci et al. 2012 for
 //! a uniform lattice); wall particles have the same mass.
@@ -49,10 +104,12 @@
 //! the step size stay `f64`; the solver's average density error and the diagnostics sum in
 //! `f64`. `f32` reaches the default tolerance of 1e-3 as `f64` does, in the same number of
 //! iterations: the residual is a difference of density changes (of order `tolerance · ρ0`), so
-//! its `f32` round-off is far below any useful tolerance (a dam break to T = 0.5 converged down
-//! to 1e-7, 38431 iterations against 38641 in `f64`). The summation density itself carries
-//! about 1e-7 relative round-off in `f32`, so tolerances below about 1e-6 buy nothing there
-//! (numbers in `tests/precision_tests.rs`).
+//! its `f32` round-off is far below any useful tolerance (a dam break to T = 0.5 at tolerance
+//! 1e-6: 9899 iterations against 9910 in `f64`; at 1e-7 both stop at step 14 after 5000
+//! iterations with residuals 1.38e-7 and 1.37e-7, where at `h = 1.3 dx` both had converged in
+//! 38431 and 38641 iterations). The summation density itself carries about 1e-7 relative
+//! round-off in `f32`, so tolerances below about 1e-6 buy nothing there (numbers in
+//! `tests/precision_tests.rs`).
 
 use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
@@ -69,9 +126,12 @@ pub struct IisphParams {
     /// Kernel (default Wendland C2, as the WCSPH solver; Wendland kernels are free of the
     /// pairing instability, Dehnen & Aly 2012).
     pub kernel: KernelKind,
-    /// Smoothing length over particle spacing (default 1.3: about 21 neighbours in 2D; with the
-    /// 3D habit of a cubic spline with support `2 dx` a 2D lattice particle has only 8
-    /// neighbours, and a water column at rest churned at up to 0.7 m/s in our tests).
+    /// Smoothing length over particle spacing (default 1.385: 20 neighbours on the square
+    /// lattice, 18 on the hexagonal one, and the middle of the band 1.375..1.395 in which a
+    /// linear stability analysis finds neither lattice unstable under pressure with Wendland C2;
+    /// see "Lattice stability" in the module docs. At 1.3 a water column at rest drifted at
+    /// 1.5% of `sqrt(gH)` after 1 s; with the 3D habit of a cubic spline with support `2 dx` a
+    /// 2D lattice particle has only 8 neighbours, and the column churned at up to 0.7 m/s).
     pub h_over_dx: f64,
     /// Courant factor: `dt <= cfl dx / |v|max` (default 0.4, the paper's λ = 0.4).
     pub cfl: f64,
@@ -91,7 +151,7 @@ impl Default for IisphParams {
     fn default() -> Self {
         IisphParams {
             kernel: KernelKind::WendlandC2,
-            h_over_dx: 1.3,
+            h_over_dx: 1.385,
             cfl: 0.4,
             dt_max: 0.005,
             tolerance: 1e-3,
