@@ -10,6 +10,8 @@
 //!   t = 1 (f32, CFL 0.5, nu = 0.01), RK4 and SSP-RK3, 32^2 to 256^2 (32^2 and 64^2 when quick).
 //! * bench `lid_driven_cavity`: time per step against the max centreline error vs Ghia at
 //!   Re = 100, 64^2 and 128^2 (64^2 when quick).
+//! * bench `abc_3d`: time per 3D Navier-Stokes RK4 step against the relative L2 error of the ABC
+//!   flow at t = 1 (f32, CFL 0.5, nu = 0.01), 16^3 to 64^3 (16^3 and 32^3 when quick).
 //! * stress `decaying_turbulence`, `decaying_taylor_green`: unforced flows stay finite and
 //!   divergence-free and never gain energy; `kolmogorov`: the forced flow stays finite,
 //!   divergence-free and bounded. Each check names the first step at which it broke.
@@ -75,6 +77,11 @@ pub fn tasks() -> CrateTasks {
                 name: "lid_driven_cavity",
                 about: "Lid-driven cavity Re = 100: time per step against the max centreline error vs Ghia, 64^2 and 128^2.",
                 run: bench_cavity,
+            },
+            Entry {
+                name: "abc_3d",
+                about: "3D ABC flow (periodic, f32, RK4): time per step against the velocity error at t = 1, 16^3 to 64^3.",
+                run: bench_abc_3d,
             },
         ],
         stress: vec![
@@ -557,6 +564,42 @@ fn bench_taylor_green(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
                 threads: ctx.threads,
             });
         }
+    }
+    Ok(rows)
+}
+
+/// 3D ABC flow on `[0, 2 pi]^3` (A = B = C = 1, nu = 0.01), f32, RK4, CFL 0.5 on the largest
+/// component (2): time per `NavierStokes3d` step against the relative L2 error at t = 1 over all
+/// faces, 16^3, 32^3 and 64^3 (64^3 only when not quick).
+fn bench_abc_3d(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    use crate::grid3d::{abc::abc_flow, Grid3d, NavierStokes3d, NavierStokes3dConfig};
+    let sizes: &[usize] = if ctx.quick { &[16, 32] } else { &[16, 32, 64] };
+    let (nu, coef) = (0.01, [1.0, 1.0, 1.0]);
+    let mut rows = Vec::new();
+    for &n in sizes {
+        let grid = Grid3d::cube(n, 2.0 * PI)?;
+        let steps = (1.0 / (0.5 * grid.min_spacing() / 2.0)).ceil() as usize;
+        let ns = NavierStokes3d::new(grid, NavierStokes3dConfig { nu, dt: 1.0 / steps as f64, scheme: Scheme::Rk4 })?;
+        let u0 = abc_flow(grid, coef, nu, 0.0, DType::F32)?;
+        let mut u = u0.clone();
+        for _ in 0..steps {
+            u = ns.step(&u)?;
+        }
+        let exact = abc_flow(grid, coef, nu, 1.0, DType::F64)?;
+        let err = rel_l2(u.values(), exact.values())?;
+        let reps = if ctx.quick { 5 } else { (1280 / n).max(10) };
+        let seconds = median_seconds(2, reps, || ns.step(&u0).expect("stable step"));
+        rows.push(BenchRow {
+            case: "abc_3d".into(),
+            method: "pbdl_fv_rk4".into(),
+            size: format!("{n}x{n}x{n}"),
+            seconds,
+            unit: "step".into(),
+            error: Some(err),
+            error_kind: "rel_l2_vs_analytic".into(),
+            peer: false,
+            threads: ctx.threads,
+        });
     }
     Ok(rows)
 }

@@ -1,18 +1,17 @@
 //! Incompressible Navier-Stokes in the closed 3D box of [`super::walls`] (lid-driven cavity):
-//! the walled flux-form right-hand side and the MIC(0)-CG projection after every Runge-Kutta
-//! stage, through the generic [`projected_runge_kutta`].
+//! the walled flux-form right-hand side and the walled projection after every Runge-Kutta
+//! stage, through the generic [`projected_runge_kutta`]. The pressure solver is a choice
+//! ([`BoxPressure`]: sparse Cholesky by default, or preconditioned CG).
 
-use super::cg::{CgBox3d, WallProjection};
+use super::box_pressure::{BoxPressure, BoxSolver, WallProjection};
 use super::field::MacField3d;
 use super::momentum::check_nu;
 use super::stability::{check_time_step, stable_time_step};
 use super::walls::{CavityWalls, WallMomentumRhs};
 use super::{Grid3d, NavierStokes3dConfig};
-use crate::pressure::CgSettings;
 use crate::stability::StabilityReport;
 use crate::time_stepping::{projected_runge_kutta, ButcherTableau, Scheme};
 use crate::{Error, Result};
-use std::sync::Arc;
 
 /// A built 3D lid-driven-cavity stepper.
 pub struct Cavity3d {
@@ -38,21 +37,28 @@ impl std::fmt::Debug for Cavity3d {
 
 impl Cavity3d {
     /// Builds the stepper: validates the parameters, refuses a `dt` beyond the diffusive limit,
-    /// sets up the CG pressure solver.
-    pub fn new(grid: Grid3d, walls: CavityWalls, config: NavierStokes3dConfig, cg: CgSettings) -> Result<Self> {
+    /// builds the pressure solver (`pressure`: [`BoxPressure::default()`] = `Auto` (sparse
+    /// Cholesky factored here once up to 32^3 cells, CG above), [`BoxPressure::Cholesky`] or
+    /// [`BoxPressure::Cg`]; a bare [`crate::pressure::CgSettings`] converts into the latter).
+    pub fn new(
+        grid: Grid3d,
+        walls: CavityWalls,
+        config: NavierStokes3dConfig,
+        pressure: impl Into<BoxPressure>,
+    ) -> Result<Self> {
         grid.validate()?;
         walls.validate()?;
         check_nu(config.nu)?;
         let tableau = config.scheme.tableau();
         tableau.validate()?;
         check_time_step(&grid, [walls.lid_velocity.abs(), 0.0, 0.0], config.nu, &tableau, config.dt)?;
-        let projection = WallProjection { solver: CgBox3d::new(grid, cg)? };
+        let projection = WallProjection { solver: pressure.into().build(grid)? };
         let rhs = WallMomentumRhs { grid, walls, advect: true, nu: config.nu };
         let mut operators = vec!["grid3d.advect.flux_form_walls"];
         if config.nu > 0.0 {
             operators.push("grid3d.diffuse.explicit");
         }
-        operators.push("grid3d.pressure.mic0_cg");
+        operators.push(projection.solver.operator_name());
         operators.push(match config.scheme {
             Scheme::Rk4 => "time_stepping.rk4",
             Scheme::SspRk3 => "time_stepping.ssp_rk3",
@@ -67,7 +73,7 @@ impl Cavity3d {
     }
 
     /// The pressure solver (shared).
-    pub fn solver(&self) -> &Arc<CgBox3d> {
+    pub fn solver(&self) -> &BoxSolver {
         &self.projection.solver
     }
 

@@ -9,18 +9,17 @@
 //! `0.25 A_ii`, in lexicographic order (x fastest).
 //!
 //! On the interior faces `D = -G^T`, so the projection `u - G A^+ (-D u)` is symmetric and its
-//! backward is one more projection of the cotangent (with the same tolerance). The recursive CG
+//! backward is one more projection of the cotangent (with the same tolerance); the projection
+//! itself lives in [`super::box_pressure`], shared with the Cholesky solver. The recursive CG
 //! residual is exactly the divergence left behind: `||D P u||_2 <= rel_tol ||D u||_2`.
 
+use super::box_pressure::{make_incompressible_box, project_box_slice, BoxSolver};
 use super::field::MacField3d;
-use super::momentum::check_shape;
-use super::walls::{unit, WallGeom};
+use super::walls::WallGeom;
 use super::{CavityWalls, Grid3d};
 use crate::pressure::{CgPreconditioner, CgSettings, CgStats};
 use crate::{Error, Result};
-use candle_core::{Shape, Tensor};
-use pbdl_core::op::{apply1, Kernel1, Op1};
-use pbdl_core::Real;
+use candle_core::{DType, Tensor};
 use std::sync::Arc;
 
 /// The pivot floor of MIC(0), as a fraction of the diagonal (as in 2D).
@@ -168,6 +167,12 @@ impl CgBox3d {
     /// `x = A^+ b` from a zero start (`b`'s mean is removed first; `x` has zero mean).
     /// Non-convergence within `max_iter` is an [`Error::Solver`] naming the residual reached.
     pub fn solve(&self, b: &mut [f64], x: &mut [f64]) -> Result<CgStats> {
+        x.fill(0.0);
+        self.solve_from(b, x)
+    }
+
+    /// [`Self::solve`] from the start `x` (warm start: the previous pressure).
+    pub fn solve_from(&self, b: &mut [f64], x: &mut [f64]) -> Result<CgStats> {
         let n = self.grid.cells();
         if b.len() != n || x.len() != n {
             return Err(Error::Shape {
@@ -178,18 +183,24 @@ impl CgBox3d {
             });
         }
         remove_mean(b);
-        x.fill(0.0);
         let bnorm = dot(b, b).sqrt();
         if bnorm == 0.0 {
+            x.fill(0.0);
             return Ok(CgStats { iterations: 0, rel_residual: 0.0 });
         }
         let target = self.settings.rel_tol * bnorm;
-        let mut r = b.to_vec();
         let (mut z, mut q) = (vec![0.0; n], vec![0.0; n]);
+        // r = b - A x (the start); a start already within the tolerance costs no iteration.
+        self.matvec(x, &mut q);
+        let mut r: Vec<f64> = b.iter().zip(&q).map(|(b, q)| b - q).collect();
+        let mut rnorm = dot(&r, &r).sqrt();
+        if rnorm <= target {
+            remove_mean(x);
+            return Ok(CgStats { iterations: 0, rel_residual: rnorm / bnorm });
+        }
         self.precondition(&r, &mut z);
         let mut d = z.clone();
         let mut rz = dot(&r, &z);
-        let mut rnorm = bnorm;
         for it in 1..=self.settings.max_iter {
             self.matvec(&d, &mut q);
             let dq = dot(&d, &q);
@@ -227,44 +238,33 @@ impl CgBox3d {
         }
     }
 
-    /// Projects one `[3, nz, ny, nx]` slice (f64) in place: wall faces to 0, then `u - G A^+ (-D u)`.
-    fn project_slice(&self, u: &mut [f64]) -> Result<CgStats> {
-        let geo = self.geo();
-        let n = geo.cells();
-        let st = self.strides();
-        let ih = self.grid.spacing().map(|h| 1.0 / h);
-        for c in 0..3 {
-            for m in 0..n {
-                if geo.is_wall_face(c, geo.pos(m)) {
-                    u[c * n + m] = 0.0;
-                }
-            }
+    /// The projection of [`make_incompressible_walls`] with a warm start (forward only,
+    /// computed in f64, returned in `u`'s dtype): `pressure` is the start, `batch * cells`
+    /// values (resized to zeros when it has another length), and receives the pressures.
+    /// Returns the largest iteration count and residual over the batch.
+    pub fn project(&self, u: &MacField3d, pressure: &mut Vec<f64>) -> Result<(MacField3d, CgStats)> {
+        if u.grid() != &self.grid {
+            return Err(Error::Invalid {
+                field: "solver",
+                reason: format!("built for {:?}, the field lives on {:?}", self.grid, u.grid()),
+            });
         }
-        // b = -D u (the system is A p = -D u with A = -D G).
-        let mut b = vec![0.0; n];
-        for (m, bm) in b.iter_mut().enumerate() {
-            let p = geo.pos(m);
-            let mut div = 0.0;
-            for a in 0..3 {
-                let back = if p[a] > 0 { u[a * n + m - st[a]] } else { 0.0 };
-                div += (u[a * n + m] - back) * ih[a];
-            }
-            *bm = -div;
+        let n = self.grid.cells();
+        if pressure.len() != u.batch() * n {
+            *pressure = vec![0.0; u.batch() * n];
         }
-        let mut p = vec![0.0; n];
-        let stats = self.solve(&mut b, &mut p)?;
-        for a in 0..3 {
-            let e = unit(a);
-            for m in 0..n {
-                let pos = geo.pos(m);
-                if !geo.is_wall_face(a, pos) {
-                    let up = m + st[a];
-                    debug_assert_eq!(geo.pos(up)[a], pos[a] + e[a]);
-                    u[a * n + m] -= (p[up] - p[m]) * ih[a];
-                }
-            }
+        let mut w: Vec<f64> = u.values().to_dtype(DType::F64)?.flatten_all()?.to_vec1()?;
+        let mut worst = CgStats { iterations: 0, rel_residual: 0.0 };
+        for (ub, p) in w.chunks_mut(3 * n).zip(pressure.chunks_mut(n)) {
+            project_box_slice(&self.grid, ub, p, |b, x| {
+                let st = self.solve_from(b, x)?;
+                worst.iterations = worst.iterations.max(st.iterations);
+                worst.rel_residual = worst.rel_residual.max(st.rel_residual);
+                Ok(())
+            })?;
         }
-        Ok(stats)
+        let t = Tensor::from_vec(w, u.values().shape(), u.values().device())?.to_dtype(u.values().dtype())?;
+        Ok((MacField3d::from_parts(t, self.grid), worst))
     }
 }
 
@@ -278,62 +278,9 @@ fn remove_mean(x: &mut [f64]) {
 }
 
 /// Projects `u` in the closed box onto discretely divergence-free fields with zero normal
-/// velocity on the walls (wall faces set to 0). Differentiable (the backward is the same
-/// projection of the cotangent). Non-convergence of CG is an error.
+/// velocity on the walls (wall faces set to 0), by CG. Differentiable (the backward is the same
+/// projection of the cotangent). Non-convergence of CG is an error. The same as
+/// [`make_incompressible_box`] with [`BoxSolver::Cg`].
 pub fn make_incompressible_walls(u: &MacField3d, solver: &Arc<CgBox3d>) -> Result<MacField3d> {
-    if u.grid() != &solver.grid {
-        return Err(Error::Invalid {
-            field: "solver",
-            reason: format!(
-                "built for {:?}, the field lives on {:?}; build it with CgBox3d::new(grid, ..)",
-                solver.grid,
-                u.grid()
-            ),
-        });
-    }
-    let op = WallProjection { solver: solver.clone() };
-    Ok(MacField3d::from_parts(op.apply(u.values())?, *u.grid()))
-}
-
-/// The walled projection as a custom op (computed in f64, returned in the input's dtype).
-#[derive(Clone)]
-pub(crate) struct WallProjection {
-    pub solver: Arc<CgBox3d>,
-}
-
-impl WallProjection {
-    pub(crate) fn apply(&self, u: &Tensor) -> candle_core::Result<Tensor> {
-        apply1(u, self.clone())
-    }
-}
-
-impl Kernel1 for WallProjection {
-    fn name(&self) -> &'static str {
-        "grid3d_make_incompressible_walls"
-    }
-    fn output_shape(&self, s: &Shape) -> candle_core::Result<Shape> {
-        check_shape(self.name(), s, &self.solver.grid)?;
-        Ok(s.clone())
-    }
-    fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
-        let n = self.solver.grid.cells();
-        let mut w = vec![0.0f64; 3 * n];
-        for (xb, ob) in x.chunks(3 * n).zip(out.chunks_mut(3 * n)) {
-            for (a, &b) in w.iter_mut().zip(xb) {
-                *a = <T as candle_core::WithDType>::to_f64(b);
-            }
-            self.solver.project_slice(&mut w)?;
-            for (o, &a) in ob.iter_mut().zip(&w) {
-                *o = T::c(a);
-            }
-        }
-        Ok(())
-    }
-}
-
-impl Op1 for WallProjection {
-    fn backward(&self, _x: &Tensor, _y: &Tensor, gy: &Tensor) -> candle_core::Result<Tensor> {
-        // Symmetric on the interior faces, zero on the wall faces in and out: P^T = P.
-        self.apply(gy)
-    }
+    make_incompressible_box(u, &BoxSolver::Cg(solver.clone()))
 }

@@ -11,8 +11,10 @@
 //! | [`navier_stokes`] | [`NavierStokes3d`]: RK4 (or SSP-RK3) with a projection per stage, listing its operators |
 //! | [`abc`] | [`abc::abc_flow`]: the Arnold-Beltrami-Childress exact solution, for accuracy tests |
 //! | [`walls`] | [`CavityWalls`]: a closed box with no-slip walls and a sliding lid; ghost rules; [`walls::momentum_rhs_walls`] |
-//! | [`cg`] | [`CgBox3d`]: MIC(0)-preconditioned CG on the seven-point Neumann Laplacian, [`cg::make_incompressible_walls`] |
-//! | [`cavity`] | [`Cavity3d`]: the lid-driven cavity stepper (walled right-hand side, CG projection per stage) |
+//! | [`cg`] | [`CgBox3d`]: MIC(0)-preconditioned CG on the seven-point Neumann Laplacian (cold or warm start), [`cg::make_incompressible_walls`] |
+//! | [`cholesky`] | [`CholeskyBox3d`]: the same matrix factored once (faer sparse Cholesky, nested-dissection order) |
+//! | [`box_pressure`] | [`BoxPressure`] (the solver choice), [`BoxSolver`], [`box_pressure::make_incompressible_box`] (self-adjoint) |
+//! | [`cavity`] | [`Cavity3d`]: the lid-driven cavity stepper (walled right-hand side, projection per stage) |
 //!
 //! Conventions: tensors `[batch, channel, nz, ny, nx]`, x fastest, `f32` or `f64`, CPU. The
 //! periodic solver ([`NavierStokes3d`]) treats every face of the box as periodic; the cavity
@@ -20,7 +22,7 @@
 //! Time schemes are the 2D ones ([`crate::ButcherTableau`]).
 //!
 //! Not here yet: other wall layouts (inflow/outflow, free slip), obstacles, scalar transport, a
-//! fused stage update for the cavity, and a direct (factored) 3D wall solver.
+//! fused stage update for the cavity, and a warm start of CG across time steps inside the stepper.
 //!
 //! ```
 //! use pbdl_grid::grid3d::{abc::abc_flow, fd, Grid3d, NavierStokes3d, NavierStokes3dConfig};
@@ -33,8 +35,10 @@
 //! ```
 
 pub mod abc;
+pub mod box_pressure;
 pub mod cavity;
 pub mod cg;
+pub mod cholesky;
 pub mod domain;
 pub mod fd;
 mod fft;
@@ -46,8 +50,10 @@ pub mod pressure;
 pub mod stability;
 pub mod walls;
 
+pub use box_pressure::{BoxPressure, BoxSolver};
 pub use cavity::Cavity3d;
 pub use cg::CgBox3d;
+pub use cholesky::CholeskyBox3d;
 pub use domain::Grid3d;
 pub use field::MacField3d;
 pub use navier_stokes::{NavierStokes3d, NavierStokes3dConfig};
