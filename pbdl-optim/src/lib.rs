@@ -6,7 +6,7 @@
 //! |---|---|
 //! | [`hig`] | half-inverse gradients (HIG) and Gauss-Newton from one SVD solve ([`hig::HalfInverse`]), trainers ([`hig::HigTrainer`], [`hig::AdamTrainer`]), loss-vs-wall-clock runs |
 //! | [`mlp`] | a dense `f64` network with exact per-sample Jacobian rows ([`mlp::Mlp`]) |
-//! | [`physics`] | the [`physics::Physics`] trait (forward + exact Jacobian) and the experiments' physics: linear chain, nonlinear oscillators (RK4), Poisson 8x8 |
+//! | [`physics`] | the [`physics::Physics`] trait (forward + exact Jacobian) and the experiments' physics: linear chain, nonlinear oscillators (RK4), Poisson 8x8, quantum dipole (Crank-Nicolson) |
 //! | [`bptt`] | stabilized BPTT: gradient modes F, P, S, C for any candle rollout, with value / global-norm clipping |
 //! | [`cartpole`] | cart-pole with 1..N poles, differentiable in candle, and the stabilized-BPTT training run on it |
 //! | [`racecar`] | the racecar reverse-pass reconstruction loss (transposed shared weights) for dense nets, and the SVD alignment analysis |

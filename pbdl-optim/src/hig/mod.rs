@@ -4,7 +4,8 @@
 //! `y_s = P(x_s; u_s)`, stack the per-sample output Jacobians into
 //! `J = d y / d theta` (`b * dim(y)` rows, `|theta|` columns), computed exactly as
 //! `J_s = J_phys,s J_net,s` ([`composed_jacobian`]). With the loss gradient
-//! `g = d(L / b)/dy = 2 (y - y*) / b` and the thin SVD `J = U S V^T`:
+//! `g = d(L / b)/dy` (least squares: `2 (y - y*) / b`; other per-sample losses: [`Loss`]) and
+//! the thin SVD `J = U S V^T`:
 //!
 //! ```text
 //! dtheta = V diag(s_i^-kappa if s_i > tau * s_max else 0) U^T g,   theta <- theta - eta dtheta
@@ -19,11 +20,17 @@
 //!
 //! | file | gives you |
 //! |---|---|
+//! | [`loss`] | [`Loss`]: the per-sample loss and its gradient (least squares, state infidelity) |
 //! | [`solve`] | [`HigConfig`], [`HalfInverse`]: the SVD solve with buffers kept between steps |
-//! | [`train`] | [`HigTrainer`], [`AdamTrainer`], [`evaluate`], [`run_curve`] (loss vs wall-clock) |
+//! | [`train`] | [`HigTrainer`], [`AdamTrainer`], [`evaluate`], [`run_curve`] (loss vs wall-clock), `*_with_loss` variants |
 
+pub mod loss;
 pub mod solve;
 pub mod train;
 
+pub use loss::Loss;
 pub use solve::{Decomposition, HalfInverse, HigConfig, SolveInfo};
-pub use train::{composed_jacobian, evaluate, run_curve, AdamTrainer, Budget, Curve, HigTrainer, Method, StepInfo};
+pub use train::{
+    composed_jacobian, evaluate, evaluate_with_loss, run_curve, run_curve_with_loss, AdamTrainer, Budget, Curve,
+    HigTrainer, Method, StepInfo,
+};

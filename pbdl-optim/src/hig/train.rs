@@ -2,9 +2,11 @@
 //! with the same exact gradients, evaluation, and loss-against-wall-clock curves.
 //!
 //! Conventions (the HIG paper's code and the pbdl-book): the batch loss is
-//! `L = sum_s ||y_s - y*_s||^2` (no 1/2), the reported loss is `L / b` (mean over samples), and
-//! the HIG right-hand side is `g = d(L/b)/dy = 2 (y - y*) / b`, flattened sample after sample.
+//! `L = sum_s l(y_s, y*_s)` with the per-sample [`Loss`] `l` (by default `||y_s - y*_s||^2`, no
+//! 1/2), the reported loss is `L / b` (mean over samples), and the HIG right-hand side is
+//! `g = d(L/b)/dy` (for least squares `2 (y - y*) / b`), flattened sample after sample.
 
+use super::loss::Loss;
 use super::solve::{HalfInverse, HigConfig, SolveInfo};
 use crate::error::{check_len, Error, Result};
 use crate::mlp::{Mlp, MlpCache};
@@ -39,17 +41,19 @@ fn forward_with_physics_jacobian(
     })
 }
 
-/// Loss `sum_s ||y_s - y*_s||^2 / b` and its gradient `g = 2 (y - y*) / b`.
-fn loss_and_gradient(y: &[f64], target: &[f64], b: usize, g: &mut Vec<f64>) -> f64 {
+/// Loss `sum_s l(y_s, y*_s) / b` and its gradient `g = d(L/b)/dy`, for samples of length `ny`.
+fn loss_and_gradient(loss: Loss, y: &[f64], target: &[f64], b: usize, ny: usize, g: &mut Vec<f64>) -> Result<f64> {
+    if ny == 0 {
+        return Err(Error::shape("physics output length", "> 0", 0));
+    }
     g.resize(y.len(), 0.0);
     let inv_b = 1.0 / b as f64;
-    let mut loss = 0.0;
-    for ((gi, yi), ti) in g.iter_mut().zip(y).zip(target) {
-        let r = yi - ti;
-        loss += r * r;
-        *gi = 2.0 * r * inv_b;
+    let mut total = 0.0;
+    for ((gs, ys), ts) in g.chunks_exact_mut(ny).zip(y.chunks_exact(ny)).zip(target.chunks_exact(ny)) {
+        total += loss.value_and_gradient(ys, ts, gs)?;
+        gs.iter_mut().for_each(|v| *v *= inv_b);
     }
-    loss * inv_b
+    Ok(total * inv_b)
 }
 
 /// The exact composed Jacobian `J = J_phys J_net` of a batch, `[b * ny, n_params]` row-major
@@ -90,6 +94,7 @@ pub struct StepInfo {
 #[derive(Debug)]
 pub struct HigTrainer {
     cfg: HigConfig,
+    loss: Loss,
     solver: HalfInverse,
     ws: Workspace,
     jac: Vec<f64>,
@@ -108,6 +113,7 @@ impl HigTrainer {
         cfg.validate()?;
         Ok(Self {
             cfg,
+            loss: Loss::SquaredError,
             solver: HalfInverse::new(0, 0, par),
             ws: Workspace::default(),
             jac: Vec::new(),
@@ -116,9 +122,20 @@ impl HigTrainer {
         })
     }
 
+    /// The same trainer minimising `loss` (default [`Loss::SquaredError`]).
+    pub fn with_loss(mut self, loss: Loss) -> Self {
+        self.loss = loss;
+        self
+    }
+
     /// The settings.
     pub fn config(&self) -> &HigConfig {
         &self.cfg
+    }
+
+    /// The per-sample loss.
+    pub fn loss(&self) -> Loss {
+        self.loss
     }
 
     /// The solver (singular values and vectors of the last step).
@@ -133,7 +150,7 @@ impl HigTrainer {
     pub fn step(&mut self, net: &mut Mlp, physics: &dyn Physics, batch: Batch<'_>) -> Result<StepInfo> {
         let ws = &mut self.ws;
         forward_with_physics_jacobian(net, physics, batch, &mut ws.cache, &mut ws.y, &mut ws.jp)?;
-        let loss = loss_and_gradient(&ws.y, batch.targets, batch.len, &mut ws.g);
+        let loss = loss_and_gradient(self.loss, &ws.y, batch.targets, batch.len, physics.output_dim(), &mut ws.g)?;
         if !loss.is_finite() {
             return Err(Error::Diverged { step: self.step, loss, last_good: self.step.saturating_sub(1) });
         }
@@ -152,9 +169,11 @@ impl HigTrainer {
 }
 
 /// The Adam baseline: the exact loss gradient `sum_s J_net,s^T J_phys,s^T g_s` (ordinary
-/// backprop through the same network and physics), updated by pbdl-core's Adam.
+/// backprop through the same network and physics: [`Physics::vjp`], then the network's
+/// backward pass), updated by pbdl-core's Adam.
 pub struct AdamTrainer {
     opt: Optim,
+    loss: Loss,
     theta: Var,
     ws: Workspace,
     cot: Vec<f64>,
@@ -173,30 +192,52 @@ impl AdamTrainer {
     pub fn new(net: &Mlp, lr: f64) -> Result<Self> {
         let theta = Var::from_slice(net.params(), net.n_params(), &Device::Cpu)?;
         let opt = OptimizerConfig::Adam(AdamConfig { lr, ..Default::default() }).build(vec![theta.clone()])?;
-        Ok(Self { opt, theta, ws: Workspace::default(), cot: Vec::new(), grad: Vec::new(), step: 0 })
+        Ok(Self {
+            opt,
+            loss: Loss::SquaredError,
+            theta,
+            ws: Workspace::default(),
+            cot: Vec::new(),
+            grad: Vec::new(),
+            step: 0,
+        })
+    }
+
+    /// The same trainer minimising `loss` (default [`Loss::SquaredError`]).
+    pub fn with_loss(mut self, loss: Loss) -> Self {
+        self.loss = loss;
+        self
+    }
+
+    /// The per-sample loss.
+    pub fn loss(&self) -> Loss {
+        self.loss
     }
 
     /// One Adam step on `batch`. The network's parameters must not be changed elsewhere
     /// between steps (Adam keeps its own copy and its moments).
     pub fn step(&mut self, net: &mut Mlp, physics: &dyn Physics, batch: Batch<'_>) -> Result<StepInfo> {
         let ws = &mut self.ws;
-        forward_with_physics_jacobian(net, physics, batch, &mut ws.cache, &mut ws.y, &mut ws.jp)?;
-        let loss = loss_and_gradient(&ws.y, batch.targets, batch.len, &mut ws.g);
+        let (b, nu, ny, nx) = (batch.len, physics.control_dim(), physics.output_dim(), physics.context_dim());
+        check_len("network output width vs physics control length", nu, net.out_dim())?;
+        check_len("batch targets length", b * ny, batch.targets.len())?;
+        check_len("batch contexts length", b * nx, batch.contexts.len())?;
+        net.forward(batch.inputs, b, &mut ws.cache)?;
+        let u = ws.cache.output();
+        ws.y.resize(b * ny, 0.0);
+        ws.y.par_chunks_mut(ny).enumerate().try_for_each(|(s, ys)| {
+            physics.forward(&batch.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], ys)
+        })?;
+        let loss = loss_and_gradient(self.loss, &ws.y, batch.targets, b, ny, &mut ws.g)?;
         if !loss.is_finite() {
             return Err(Error::Diverged { step: self.step, loss, last_good: self.step.saturating_sub(1) });
         }
         // Physics VJP per sample: cot_s = J_phys,s^T g_s.
-        let (ny, nu) = (physics.output_dim(), physics.control_dim());
-        self.cot.resize(batch.len * nu, 0.0);
-        for s in 0..batch.len {
-            let c = &mut self.cot[s * nu..(s + 1) * nu];
-            c.fill(0.0);
-            for k in 0..ny {
-                let gk = ws.g[s * ny + k];
-                let row = &ws.jp[(s * ny + k) * nu..(s * ny + k + 1) * nu];
-                c.iter_mut().zip(row).for_each(|(ci, j)| *ci += gk * j);
-            }
-        }
+        self.cot.resize(b * nu, 0.0);
+        let g = &ws.g;
+        self.cot.par_chunks_mut(nu).enumerate().try_for_each(|(s, c)| {
+            physics.vjp(&batch.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], &g[s * ny..(s + 1) * ny], c)
+        })?;
         self.grad.resize(net.n_params(), 0.0);
         net.gradient(&ws.cache, &self.cot, &mut self.grad)?;
         crate::error::check_finite("loss gradient", &self.grad, 1)?;
@@ -213,6 +254,12 @@ impl AdamTrainer {
 
 /// Mean loss per sample `sum_s ||P(x_s; f(i_s)) - y*_s||^2 / n` over a data set.
 pub fn evaluate(net: &Mlp, physics: &dyn Physics, data: &Dataset) -> Result<f64> {
+    evaluate_with_loss(net, physics, Loss::SquaredError, data)
+}
+
+/// Mean loss per sample `sum_s l(P(x_s; f(i_s)), y*_s) / n` over a data set.
+pub fn evaluate_with_loss(net: &Mlp, physics: &dyn Physics, loss: Loss, data: &Dataset) -> Result<f64> {
+    loss.check_dim(physics.output_dim())?;
     let mut cache = MlpCache::default();
     let all = data.all();
     net.forward(all.inputs, all.len, &mut cache)?;
@@ -224,7 +271,7 @@ pub fn evaluate(net: &Mlp, physics: &dyn Physics, data: &Dataset) -> Result<f64>
         .map(|s| -> Result<f64> {
             let mut y = vec![0.0; ny];
             physics.forward(&all.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], &mut y)?;
-            Ok(y.iter().zip(&all.targets[s * ny..(s + 1) * ny]).map(|(a, b)| (a - b) * (a - b)).sum())
+            loss.value(&y, &all.targets[s * ny..(s + 1) * ny])
         })
         .collect::<Result<Vec<f64>>>()?
         .into_iter()
@@ -307,19 +354,34 @@ pub fn run_curve(
     budget: Budget,
     eval_every: u64,
 ) -> Result<Curve> {
+    run_curve_with_loss(net, physics, Loss::SquaredError, method, train, eval, batch, budget, eval_every)
+}
+
+/// [`run_curve`] minimising (and evaluating) the per-sample `loss`.
+pub fn run_curve_with_loss(
+    net: &mut Mlp,
+    physics: &dyn Physics,
+    loss: Loss,
+    method: Method,
+    train: &Dataset,
+    eval: &Dataset,
+    batch: usize,
+    budget: Budget,
+    eval_every: u64,
+) -> Result<Curve> {
     if batch == 0 || batch > train.len {
         return Err(Error::shape("batch size", format!("1..={}", train.len), batch));
     }
     let mut curve = Curve::default();
     curve.seconds.push(0.0);
     curve.steps.push(0);
-    curve.loss.push(evaluate(net, physics, eval)?);
+    curve.loss.push(evaluate_with_loss(net, physics, loss, eval)?);
     let mut hig = match method {
-        Method::Hig(cfg) => Some(HigTrainer::new(cfg)?),
+        Method::Hig(cfg) => Some(HigTrainer::new(cfg)?.with_loss(loss)),
         Method::Adam { .. } => None,
     };
     let mut adam = match method {
-        Method::Adam { lr } => Some(AdamTrainer::new(net, lr)?),
+        Method::Adam { lr } => Some(AdamTrainer::new(net, lr)?.with_loss(loss)),
         Method::Hig(_) => None,
     };
     let n_batches = train.len / batch;
@@ -346,14 +408,14 @@ pub fn run_curve(
         elapsed += dt;
         step += 1;
         if step % eval_every.max(1) == 0 || elapsed >= budget.seconds || step >= budget.max_steps {
-            let loss = evaluate(net, physics, eval)?;
-            if !loss.is_finite() {
+            let value = evaluate_with_loss(net, physics, loss, eval)?;
+            if !value.is_finite() {
                 curve.diverged_at = Some(step);
                 return Ok(curve);
             }
             curve.seconds.push(elapsed);
             curve.steps.push(step);
-            curve.loss.push(loss);
+            curve.loss.push(value);
         }
     }
     Ok(curve)

@@ -9,12 +9,15 @@
 //! |---|---|---|
 //! | [`ode`] | any small controlled ODE integrated by RK4, Jacobian by forward tangents per step | `n`, `steps`, `n` |
 //! | [`oscillators`] | the pbdl-book linear chain and the HIG paper's nonlinear oscillators | `4`, `24` / `96`, `4` |
+//! | [`dipole`] | the HIG paper's quantum dipole: Crank-Nicolson for `i psi_t = (-psi_xx + u(t) x) psi`, Jacobian and VJP by an adjoint sweep | `28`, `384`, `28` (complex states as `Re, Im` pairs) |
 //! | [`poisson`] | the 5-point Laplacian on an 8x8 grid with zero boundary (`y = L u`) | `0`, `64`, `64` |
 
+pub mod dipole;
 pub mod ode;
 pub mod oscillators;
 pub mod poisson;
 
+pub use dipole::QuantumDipole;
 pub use ode::{ControlledOde, Rk4Rollout};
 pub use oscillators::{Coupling, Oscillators};
 pub use poisson::Poisson8;
@@ -34,6 +37,23 @@ pub trait Physics: Sync {
     /// `y = P(x; u)` and `jac = dy/du`, `[output_dim, control_dim]` row-major.
     fn jacobian(&self, x: &[f64], u: &[f64], y: &mut [f64], jac: &mut [f64]) -> Result<()>;
 
+    /// The vector-Jacobian product `cot_u = (dy/du)^T cot_y` at `(x, u)` (ordinary backprop,
+    /// for first-order optimisers). The default builds the whole Jacobian; physics with a
+    /// cheaper adjoint pass override it.
+    fn vjp(&self, x: &[f64], u: &[f64], cot_y: &[f64], cot_u: &mut [f64]) -> Result<()> {
+        let (ny, nu) = (self.output_dim(), self.control_dim());
+        check_len("physics output cotangent length", ny, cot_y.len())?;
+        check_len("physics control cotangent length", nu, cot_u.len())?;
+        let mut y = vec![0.0; ny];
+        let mut jac = vec![0.0; ny * nu];
+        self.jacobian(x, u, &mut y, &mut jac)?;
+        cot_u.fill(0.0);
+        for (k, gk) in cot_y.iter().enumerate() {
+            cot_u.iter_mut().zip(&jac[k * nu..(k + 1) * nu]).for_each(|(c, j)| *c += gk * j);
+        }
+        Ok(())
+    }
+
     /// Checks the slice lengths of one sample.
     fn check_sample(&self, x: &[f64], u: &[f64], y: &[f64]) -> Result<()> {
         check_len("physics context length", self.context_dim(), x.len())?;
@@ -42,8 +62,9 @@ pub trait Physics: Sync {
     }
 }
 
-/// Samples of a learning problem `min_theta sum_s ||P(x_s; f(i_s; theta)) - y*_s||^2`: network
-/// inputs `i_s`, physics contexts `x_s` and targets `y*_s`, each stored row after row.
+/// Samples of a learning problem `min_theta sum_s ||P(x_s; f(i_s; theta)) - y*_s||^2` (or another
+/// per-sample [`crate::hig::Loss`]): network inputs `i_s`, physics contexts `x_s` and targets
+/// `y*_s`, each stored row after row.
 #[derive(Clone, Debug, Default)]
 pub struct Dataset {
     /// Network inputs `[n, input_dim]`.
