@@ -11,22 +11,34 @@
 //! written there as a pbdl checkpoint, the per-step log as `train_log.csv`, the table as `table.md`.
 
 use pbdl_metrics::train::data::{cached, generate, load_sequences, DataConfig, Kind};
+use pbdl_metrics::train::experiment::cache_name;
 use pbdl_metrics::train::loss::fit2_coefficient;
 use pbdl_metrics::train::{evaluate, markdown_table, MetricNet, Scored};
 use pbdl_metrics::train::{run_experiment, ExperimentConfig, GroundTruth};
+use pbdl_metrics::{Lsim, LsimSize};
 
 /// `--eval MODEL [--test-seed S]`: scores a saved model on freshly generated (cached) test sets
-/// of seed `S`, next to L2 and SSIM, without training.
+/// of seed `S`, next to L2, SSIM and (unless `--no-lsim`) the published LSiM, without training.
 fn eval_only(cfg: &ExperimentConfig, model: &str, seed: u64) -> Result<(), Box<dyn std::error::Error>> {
     let net = MetricNet::load(model)?;
     let dir = cfg.out_dir.clone().ok_or("no --out")?;
     let mut sets = Vec::new();
     for kind in Kind::ALL {
-        let path = dir.join(format!("{}_test_{}_{}_s{seed}.npz", kind.short(), cfg.test_per_kind, cfg.resolution));
+        let path = dir.join(cache_name(kind, "test", cfg.test_per_kind, cfg.resolution, seed));
         let dc = DataConfig { resolution: cfg.resolution, seed };
         sets.push((kind.short().to_string(), cached(path, || generate(kind, cfg.test_per_kind, &dc))?));
     }
-    let rows = evaluate(&[Scored::L2, Scored::Ssim, Scored::Trained(&net)], &sets)?;
+    let lsim = if cfg.published_lsim {
+        pbdl_metrics::weights::weights_dir().and_then(|d| Lsim::load(d.join(pbdl_metrics::weights::LSIM_FILE)).ok())
+    } else {
+        None
+    };
+    let mut metrics = vec![Scored::L2, Scored::Ssim];
+    if let Some(l) = &lsim {
+        metrics.push(Scored::Lsim(l, LsimSize::Resize224));
+    }
+    metrics.push(Scored::Trained(&net));
+    let rows = evaluate(&metrics, &sets)?;
     println!("test seed {seed}, model {model}\n\n{}", markdown_table(&rows));
     Ok(())
 }

@@ -2,16 +2,17 @@
 //! Burgers, then compare Spearman correlations on kinds never trained on (smoke, shapes).
 //! Prints the table of `docs/metric-training.md`.
 //!
-//! Status of the acceptance ("beats L2 and SSIM on a kind it was not trained on"): the
-//! trained metric beats SSIM on both unseen kinds but NOT L2 (smoke 0.595 vs 0.595 with L2
-//! ahead in the 4th decimal, shapes 0.945 vs 0.971 in the recorded run). This test asserts the part that holds (SSIM) and prints
-//! the L2 comparison, so that a change that closes the gap is visible.
+//! The data follow the authors' generation scripts (noise injected into the velocity at every
+//! step, their parameter steps, their shapes; `docs/metric-training.md`). The test prints the
+//! whole table and then checks the acceptance: on at least one unseen kind the trained
+//! metric beats both L2 and SSIM. Run it with `RAYON_NUM_THREADS=1` on a shared machine (the
+//! small tensor ops of the generators are several times slower with contended worker threads).
 
 use pbdl_metrics::train::experiment::UNSEEN;
 use pbdl_metrics::train::{run_experiment, ExperimentConfig};
 
 #[test]
-#[ignore = "trains a metric from scratch: ~10 min data + ~16 min training + ~2 min evaluation on the busy 2-core machine"]
+#[ignore = "trains a metric from scratch: 428 s measured with RAYON_NUM_THREADS=1 on the shared 2-core machine (data 168 s, training 182 s, evaluation 77 s)"]
 fn trained_metric_on_unseen_kinds() {
     let cfg = ExperimentConfig {
         out_dir: Some(std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("metric-training")),
@@ -31,14 +32,19 @@ fn trained_metric_on_unseen_kinds() {
     );
     println!("epoch losses {:?}", r.training.epoch_loss);
     println!("{}", r.table);
+    let mut wins = Vec::new();
     for set in UNSEEN {
         let ours = r.score("trained here", set).unwrap();
         let l2 = r.score("L2", set).unwrap();
         let ssim = r.score("SSIM", set).unwrap();
         println!(
-            "{set}: trained {ours:.3}, L2 {l2:.3} ({}), SSIM {ssim:.3}",
-            if ours > l2 { "beats L2" } else { "does NOT beat L2" }
+            "{set}: trained {ours:.3}, L2 {l2:.3} ({}), SSIM {ssim:.3} ({})",
+            if ours > l2 { "beats L2" } else { "does NOT beat L2" },
+            if ours > ssim { "beats SSIM" } else { "does NOT beat SSIM" }
         );
-        assert!(ours > ssim, "{set}: trained {ours:.3} does not beat SSIM {ssim:.3}");
+        if ours > l2 && ours > ssim {
+            wins.push(set);
+        }
     }
+    assert!(!wins.is_empty(), "the trained metric beats L2 and SSIM on no unseen kind");
 }

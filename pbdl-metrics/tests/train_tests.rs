@@ -5,9 +5,9 @@
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::{check_grad, GradCheckOptions};
 use pbdl_metrics::classic::spearman_values;
-use pbdl_metrics::train::data::{generate, load_sequences, save_sequences, DataConfig, Kind, FRAMES};
+use pbdl_metrics::train::data::{generate, load_sequences, save_sequences, spectral_noise, DataConfig, Kind, FRAMES};
 use pbdl_metrics::train::eval::{normalise_01, reference_distances, spearman_protocol, Scored};
-use pbdl_metrics::train::fit::{augment, sequence_loss, train, TrainConfig};
+use pbdl_metrics::train::fit::{augment, random_crop, sequence_loss, train, TrainConfig};
 use pbdl_metrics::train::loss::{
     fit2_coefficient, fit_log_coefficient, ground_truth, log_curve, metric_loss, pairs, pearson_1d, GroundTruth,
     LossConfig, FIT_RANGE,
@@ -160,7 +160,10 @@ fn calibration_equals_the_two_pass_pooled_statistics() {
 
 #[test]
 fn network_loss_gradient_matches_finite_differences() {
-    let seqs = generate(Kind::Shapes, 1, &DataConfig { resolution: 44, seed: 5 }).unwrap();
+    // The fourth shapes mode (smoothed edges, white noise): no ties between pixels, which would
+    // make max pooling and the min/max mapping non-differentiable at the probed points.
+    let seqs = generate(Kind::Shapes, 4, &DataConfig { resolution: 44, seed: 5 }).unwrap();
+    let seqs = &seqs[3..];
     let mut net = tiny_net(2);
     net.calibrate([&to_byte_range(&seqs[0].frames).unwrap()]).unwrap();
     let net = net.to_dtype(DType::F64).unwrap();
@@ -241,9 +244,13 @@ fn generated_sequences_have_the_shape_and_grow_away_from_the_reference() {
                 *m += x / scale / count as f64;
             }
         }
-        // On average the L2 distance to the reference grows with the parameter change.
+        // On average the L2 distance to the reference grows with the parameter change. For the
+        // shapes only until they stop overlapping their start: after that L2 saturates (the
+        // reason the papers' shapes are hard for L2), so there only the first half must grow.
         let k: Vec<f64> = (1..=10).map(|k| k as f64).collect();
-        let rho = spearman_values(&mean, &k).unwrap();
+        let part = if kind == Kind::Shapes { 5 } else { 10 };
+        let rho = spearman_values(&mean[..part], &k[..part]).unwrap();
+        println!("{kind:?}: mean normalised L2 curve {mean:.3?}");
         assert!(rho > 0.9, "{kind:?}: Spearman of the mean L2 curve {rho}, {mean:?}");
         assert!(mean[9] > mean[0], "{kind:?}");
     }
@@ -294,6 +301,8 @@ fn a_few_training_steps_reduce_the_loss() {
         epochs: 4,
         adam: pbdl_core::train::AdamConfig { lr: 1e-3, ..Default::default() },
         augment: false,
+        crop: 1.0,
+        dropout: 0.0,
         ..Default::default()
     };
     let report = train(&mut net, &seqs, &cfg).unwrap();
@@ -307,6 +316,91 @@ fn a_few_training_steps_reduce_the_loss() {
 }
 
 #[test]
+fn dropout_is_unbiased_for_the_squared_distance() {
+    // Every element of the squared feature difference is kept with probability 1 - p and scaled
+    // by 1 / (1 - p), so the mean of d^2 over many masks is the d^2 without dropout (d^2 is
+    // linear in those elements); p = 0 is exactly the plain distance.
+    let seqs = generate(Kind::Shapes, 4, &DataConfig { resolution: 48, seed: 4 }).unwrap();
+    let mut net = tiny_net(5);
+    let x = to_byte_range(&seqs[3].frames).unwrap();
+    net.calibrate([&x]).unwrap();
+    let feats = net.features(&x).unwrap();
+    let pairs = [(0, 3), (0, 10), (2, 7)];
+    let plain = net.pair_distances(&feats, &pairs).unwrap().to_vec1::<f32>().unwrap();
+    let same = net.pair_distances_dropout(&feats, &pairs, 0.0, 1).unwrap().to_vec1::<f32>().unwrap();
+    assert_eq!(plain, same);
+    let trials = 400;
+    let mut mean = [0.0f64; 3];
+    for s in 0..trials {
+        let d = net.pair_distances_dropout(&feats, &pairs, 0.5, s).unwrap().to_vec1::<f32>().unwrap();
+        assert_ne!(d, plain);
+        for (m, x) in mean.iter_mut().zip(&d) {
+            *m += (*x as f64).powi(2) / trials as f64;
+        }
+    }
+    for (m, p) in mean.iter().zip(&plain) {
+        let p2 = (*p as f64).powi(2);
+        assert!((m - p2).abs() < 0.05 * p2, "mean d^2 {m} vs {p2}");
+    }
+    assert!(net.pair_distances_dropout(&feats, &pairs, 1.0, 0).is_err());
+}
+
+#[test]
+fn spectral_noise_has_phiflows_spectrum() {
+    // PhiFlow's Noise(scale=10, smoothness=1) at 128 cells: Fourier amplitude 1/kappa^2 (power
+    // 1/kappa^4) for kappa above ~4.05 periods per domain, nothing below; zero mean, unit std.
+    let (b, n) = (64, 32);
+    let f = spectral_noise(b, 1, n, 7).unwrap().to_dtype(DType::F64).unwrap();
+    assert_eq!(f.dims(), [b, 1, n, n]);
+    let v = f.flatten_from(1).unwrap().to_vec2::<f64>().unwrap();
+    for row in &v {
+        let mean = row.iter().sum::<f64>() / row.len() as f64;
+        let var = row.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / row.len() as f64;
+        assert!(mean.abs() < 1e-9 && (var - 1.0).abs() < 1e-6, "mean {mean}, var {var}");
+    }
+    // Mean power of Fourier mode (kx, ky) over the realisations, by direct summation.
+    let power = |kx: f64, ky: f64| -> f64 {
+        v.iter()
+            .map(|row| {
+                let (mut re, mut im) = (0.0, 0.0);
+                for (idx, x) in row.iter().enumerate() {
+                    let a = 2.0 * std::f64::consts::PI * (kx * (idx % n) as f64 + ky * (idx / n) as f64) / n as f64;
+                    re += x * a.cos();
+                    im -= x * a.sin();
+                }
+                re * re + im * im
+            })
+            .sum::<f64>()
+            / v.len() as f64
+    };
+    let p5 = (power(5.0, 0.0) + power(0.0, 5.0) + power(3.0, 4.0) + power(4.0, 3.0)) / 4.0;
+    let p10 = (power(10.0, 0.0) + power(0.0, 10.0) + power(6.0, 8.0) + power(8.0, 6.0)) / 4.0;
+    let ratio = p5 / p10;
+    assert!((ratio / 16.0 - 1.0).abs() < 0.35, "power ratio kappa 5 / kappa 10: {ratio} (expected 16)");
+    for (kx, ky) in [(1.0, 0.0), (3.0, 0.0), (2.0, 2.0), (4.0, 0.0)] {
+        assert!(power(kx, ky) < 1e-9 * p5, "mode ({kx}, {ky}) below the cut has power {}", power(kx, ky));
+    }
+}
+
+#[test]
+fn random_crops_are_windows_of_the_frames() {
+    let seqs = generate(Kind::Shapes, 1, &DataConfig { resolution: 32, seed: 2 }).unwrap();
+    let f = &seqs[0].frames;
+    let mut rng = pbdl_core::seed::rng(3);
+    let c = random_crop(f, 28, &mut rng).unwrap();
+    assert_eq!(c.dims(), [FRAMES, 1, 28, 28]);
+    // The crop equals some window of the frames (searched over all offsets).
+    let found = (0..=4).any(|t| {
+        (0..=4).any(|l| {
+            let w = f.narrow(2, t, 28).unwrap().narrow(3, l, 28).unwrap();
+            (w - &c).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap() == 0.0
+        })
+    });
+    assert!(found);
+    assert!(random_crop(f, 33, &mut rng).is_err());
+}
+
+#[test]
 fn bad_settings_are_typed_errors() {
     assert!(generate(Kind::Burgers, 1, &DataConfig { resolution: 8, seed: 0 }).is_err());
     assert_eq!(Kind::parse("smo").unwrap(), Kind::Smoke);
@@ -316,4 +410,7 @@ fn bad_settings_are_typed_errors() {
     let cfg = LossConfig { correlation_pairs: 20, ..LossConfig::LSIM };
     assert!(metric_loss(&v(&[0.1; 10]), &v(&[0.1; 10]), &cfg).is_err());
     assert!(train(&mut tiny_net(0), &[], &TrainConfig::default()).is_err());
+    let seqs = generate(Kind::Shapes, 1, &DataConfig { resolution: 48, seed: 0 }).unwrap();
+    assert!(train(&mut tiny_net(0), &seqs, &TrainConfig { crop: 0.0, ..Default::default() }).is_err());
+    assert!(train(&mut tiny_net(0), &seqs, &TrainConfig { dropout: 1.0, ..Default::default() }).is_err());
 }

@@ -1,33 +1,34 @@
 //! Training and test data for metric learning, generated with pbdl-grid's solvers.
 //!
 //! A [`Sequence`] is 11 frames `[11, 1, n, n]` (`f32`): frame 0 is the reference, frame `k`
-//! the same simulation with one parameter moved by `k/10` of its full change, so the parameter
-//! changes linearly over the ten variants (the LSiM data construction). Kinds:
+//! the same simulation with one parameter moved by `k` steps, so the parameter changes linearly
+//! over the ten variants (the LSiM data construction). The generators follow the authors' public
+//! data-generation scripts (tum-pbs/VOLSIM `data/generation_scripts`, the 3D successor of the LSiM
+//! data pipeline) in 2D; `docs/metric-training.md` lists every difference that remains.
 //!
-//! - [`Kind::AdvectionDiffusion`]: a periodic scalar advected by a constant velocity and
-//!   diffused ([`pbdl_grid::burgers::ScalarLaw`] without the Burgers term, RK4).
-//! - [`Kind::Burgers`]: 2D scalar viscous Burgers `c_t + div(c^2/2 [1,1]) = nu lap c`, periodic.
+//! - [`Kind::AdvectionDiffusion`]: a density moved by a periodic velocity field (semi-Lagrangian
+//!   advection, explicit diffusion, 120 steps of `dt = 1` in cell units); the velocity starts as
+//!   a sum of sines, gets a time-dependent sine forcing and new random noise at every step.
+//! - [`Kind::Burgers`]: the 2D vector Burgers equation (the velocity advects itself, explicit
+//!   viscosity, the same forcing and per-step noise); the frame is the x component.
 //! - [`Kind::Smoke`]: the buoyant smoke plume of pbdl-grid's `smoke_plume` scene (closed box,
-//!   MacCormack, Boussinesq buoyancy, sparse-Cholesky projection) on a square grid; the density
-//!   is the frame.
-//! - [`Kind::Shapes`]: no solver; a smooth disc moved and scaled along a line over a smooth
-//!   background (like the paper's synthetic "Sha" test set).
+//!   MacCormack, Boussinesq buoyancy, sparse-Cholesky projection), with Gaussian white noise
+//!   added to the velocity at every step; the density is the frame.
+//! - [`Kind::Shapes`]: no solver; one to five discs or squares moving along straight lines
+//!   (hard or smoothed edges, with or without white noise per frame), like the papers' "Sha".
 //!
-//! Varied parameters ([`Param`]): the strength of a smooth perturbation of the initial state,
-//! the amplitude of the noise added at every step, the advection direction, the viscosity, and
-//! for smoke the source position and the buoyancy. Besides the varied parameter, every variant
-//! (the reference too) gets its own smooth random noise at every step ([`NOISE_FLOOR`],
-//! [`SMOKE_NOISE_FLOOR`], [`SHAPES_NOISE`]), as the papers' data do: the variants then also
-//! differ randomly and ranking them is not trivial for L2. Initial states are random sums of
-//! low Fourier modes ([`smooth_field`]), noise is blurred white noise ([`smooth_noise`]);
-//! everything is seeded ([`pbdl_core::seed`]) and cached as `.npz` ([`save_sequences`],
-//! [`load_sequences`], [`cached`]).
+//! The noise is injected into the simulation (into the velocity), so it is transported and
+//! mixed by the flow, and every variant (the reference too) draws its own noise at every step:
+//! the variants differ randomly besides the systematic change, and by more the longer the
+//! simulation runs. Advection-diffusion and Burgers use PhiFlow's `Noise(scale=10,
+//! smoothness=1)` spectrum ([`spectral_noise`]). Everything is seeded ([`pbdl_core::seed`]) and
+//! cached as `.npz` ([`save_sequences`], [`load_sequences`], [`cached`]).
 
 use crate::{Error, Result};
 use candle_core::{DType, Device, Tensor};
-use pbdl_grid::burgers::ScalarLaw;
+use pbdl_grid::advect::semi_lagrangian;
 use pbdl_grid::scene::Scene;
-use pbdl_grid::time_stepping::ButcherTableau;
+use pbdl_grid::{Boundaries, CenteredField, Grid, MacField, ScalarBoundaries};
 use rand::{rngs::StdRng, Rng};
 use std::f64::consts::PI;
 use std::path::Path;
@@ -35,26 +36,29 @@ use std::path::Path;
 /// Frames per sequence: the reference and ten variants.
 pub const FRAMES: usize = 11;
 
-/// Amplitude of the independent noise every advection-diffusion / Burgers variant gets per unit
-/// time (relative to the field's amplitude): enough that L2 does not rank the variants perfectly.
-pub const NOISE_FLOOR: f64 = 0.15;
+/// Simulation steps of advection-diffusion and Burgers (the scripts save step 120).
+pub const STEPS: usize = 120;
 
-/// Amplitude of the independent smooth noise on every shapes frame (the disc has height 1).
-pub const SHAPES_NOISE: f64 = 0.1;
+/// The scripts' grid: their velocities, forcing and noise are in cells per step at 128 cells.
+const SCRIPT_RES: f64 = 128.0;
 
-/// The same for the smoke density (the source puts in density 1 per unit time).
-pub const SMOKE_NOISE_FLOOR: f64 = 0.05;
+/// Standard deviation of the white noise on the shapes frames (the shapes have value 1).
+pub const SHAPES_NOISE: f64 = 0.25;
+
+/// Standard deviation of the white noise added to the smoke velocity faces at every step,
+/// relative to the current maximum speed (mantaflow: 0.125 cells per time unit per step).
+pub const SMOKE_NOISE: f64 = 0.125;
 
 /// The kind of simulation (one data set per kind in the evaluation).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Kind {
-    /// Periodic advection-diffusion of a scalar.
+    /// Periodic advection-diffusion of a density by a forced, noisy velocity.
     AdvectionDiffusion,
-    /// Periodic 2D scalar viscous Burgers.
+    /// Periodic 2D vector Burgers with forcing and noise (x velocity frames).
     Burgers,
     /// Buoyant smoke plume in a closed box (density frames).
     Smoke,
-    /// A smooth disc moving over a smooth background (no solver).
+    /// Discs and squares moving along lines (no solver).
     Shapes,
 }
 
@@ -84,44 +88,66 @@ impl Kind {
     }
 }
 
-/// The parameter that changes linearly over a sequence.
+/// The parameter that changes linearly over a sequence. For advection-diffusion and Burgers
+/// these are the scripts' modes (`f1`..`f5`, `f7`, `o1`, `o2`, `od`, `noise`), each used with
+/// both signs in turn.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Param {
-    /// Strength of a smooth perturbation added to the initial state.
-    InitPerturbation,
-    /// Amplitude of the noise added at every step (`floor + t * amplitude`, each variant its own
-    /// realisation).
+    /// Constant part of the initial velocity (`f1`).
+    VelocityOffset,
+    /// Amplitude of the sine of the initial velocity and forcing with 1 period per domain (`f2`).
+    Wave1,
+    /// The same, 2 periods (`f3`).
+    Wave2,
+    /// The same, 4 periods (`f4`).
+    Wave4,
+    /// The same, 8 periods (`f5`).
+    Wave8,
+    /// Spatial shift of the forcing (`f7`).
+    ForcingShift,
+    /// Phase of the velocity sines (`o1`).
+    Phase1,
+    /// Phase of the other velocity sines (`o2`).
+    Phase2,
+    /// Phase of the initial density (`od`, advection-diffusion only).
+    DensityPhase,
+    /// Strength of the noise added at every step.
     Noise,
-    /// Direction of the advection velocity (advection-diffusion).
-    Direction,
-    /// Viscosity / diffusivity.
-    Viscosity,
     /// Horizontal position of the smoke source.
     SourcePosition,
     /// Buoyancy factor of the smoke.
     Buoyancy,
-    /// Position and size of the disc (shapes).
+    /// Positions of the moving shapes.
     ShapeMotion,
 }
 
 impl Param {
-    const ALL: [Param; 7] = [
-        Param::InitPerturbation,
+    const ALL: [Param; 13] = [
+        Param::VelocityOffset,
+        Param::Wave1,
+        Param::Wave2,
+        Param::Wave4,
+        Param::Wave8,
+        Param::ForcingShift,
+        Param::Phase1,
+        Param::Phase2,
+        Param::DensityPhase,
         Param::Noise,
-        Param::Direction,
-        Param::Viscosity,
         Param::SourcePosition,
         Param::Buoyancy,
         Param::ShapeMotion,
     ];
 
-    /// The parameters varied for `kind`.
+    /// The parameters varied for `kind` (sequence `i` uses entry `i % len`).
     pub fn for_kind(kind: Kind) -> &'static [Param] {
+        use Param::*;
         match kind {
-            Kind::AdvectionDiffusion => &[Param::InitPerturbation, Param::Noise, Param::Direction],
-            Kind::Burgers => &[Param::InitPerturbation, Param::Noise, Param::Viscosity],
-            Kind::Smoke => &[Param::SourcePosition, Param::Buoyancy, Param::Noise],
-            Kind::Shapes => &[Param::ShapeMotion],
+            Kind::AdvectionDiffusion => {
+                &[VelocityOffset, Wave1, Wave2, Wave4, Wave8, ForcingShift, Phase1, Phase2, DensityPhase, Noise]
+            }
+            Kind::Burgers => &[VelocityOffset, Wave1, Wave2, Wave4, Wave8, ForcingShift, Phase1, Phase2, Noise],
+            Kind::Smoke => &[SourcePosition, Buoyancy, Noise],
+            Kind::Shapes => &[ShapeMotion],
         }
     }
 
@@ -160,44 +186,6 @@ fn grid_err(e: impl std::fmt::Display) -> Error {
     Error::invalid("train::data", "solver", e.to_string())
 }
 
-/// A random smooth periodic field on `n x n` cells of the unit square: low Fourier modes
-/// (`|k| <= kmax`) with amplitudes decaying like `1 / |k|^2`, scaled to unit standard deviation.
-pub fn smooth_field(n: usize, kmax: i32, rng: &mut StdRng) -> Vec<f64> {
-    let mut modes = Vec::new();
-    for kx in -kmax..=kmax {
-        for ky in 0..=kmax {
-            let k2 = (kx * kx + ky * ky) as f64;
-            if k2 == 0.0 || k2 > (kmax * kmax) as f64 || (ky == 0 && kx < 0) {
-                continue;
-            }
-            let amp = rng.random_range(0.0..1.0) / k2;
-            let phase = rng.random_range(0.0..2.0 * PI);
-            modes.push((kx as f64, ky as f64, amp, phase));
-        }
-    }
-    let mut v = vec![0.0; n * n];
-    for (j, row) in v.chunks_mut(n).enumerate() {
-        let y = (j as f64 + 0.5) / n as f64;
-        for (i, out) in row.iter_mut().enumerate() {
-            let x = (i as f64 + 0.5) / n as f64;
-            *out = modes.iter().map(|&(kx, ky, a, p)| a * (2.0 * PI * (kx * x + ky * y) + p).cos()).sum();
-        }
-    }
-    let mean = v.iter().sum::<f64>() / v.len() as f64;
-    let std = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64).sqrt().max(1e-12);
-    v.iter_mut().for_each(|x| *x = (*x - mean) / std);
-    v
-}
-
-fn field_tensor(v: &[f64], n: usize) -> Result<Tensor> {
-    Ok(Tensor::from_slice(v, (1, 1, n, n), &Device::Cpu)?)
-}
-
-/// `t = k / 10` for the 11 frames.
-fn fractions() -> [f64; FRAMES] {
-    std::array::from_fn(|k| k as f64 / (FRAMES - 1) as f64)
-}
-
 /// Generates `count` sequences of `kind` (deterministic in `cfg.seed`).
 pub fn generate(kind: Kind, count: usize, cfg: &DataConfig) -> Result<Vec<Sequence>> {
     if cfg.resolution < 16 {
@@ -210,10 +198,13 @@ pub fn generate(kind: Kind, count: usize, cfg: &DataConfig) -> Result<Vec<Sequen
             );
             let params = Param::for_kind(kind);
             let param = params[i % params.len()];
+            // Every other pass over the modes changes the parameter the other way (`f1neg`, ...).
+            let sign = if (i / params.len()) % 2 == 0 { 1.0 } else { -1.0 };
+            let n = cfg.resolution;
             let frames = match kind {
-                Kind::AdvectionDiffusion | Kind::Burgers => scalar_law(kind, param, cfg.resolution, &mut rng)?,
-                Kind::Smoke => smoke(param, cfg.resolution, &mut rng)?,
-                Kind::Shapes => shapes(cfg.resolution, &mut rng)?,
+                Kind::AdvectionDiffusion | Kind::Burgers => transport(kind, param, sign, n, &mut rng)?,
+                Kind::Smoke => smoke(param, sign, n, &mut rng)?,
+                Kind::Shapes => shapes(i % 4, n, &mut rng)?,
             };
             let frames = frames.to_dtype(DType::F32)?;
             crate::check::finite("train::generate", "frames", &frames)?;
@@ -222,113 +213,234 @@ pub fn generate(kind: Kind, count: usize, cfg: &DataConfig) -> Result<Vec<Sequen
         .collect()
 }
 
-/// Smooth random noise `[batch, 1, n, n]`: independent standard normal values per cell and
-/// batch entry, blurred periodically with a Gaussian of `sigma` = 1.5 cells, scaled to unit
-/// standard deviation.
-pub fn smooth_noise(batch: usize, n: usize, seed: u64) -> Result<Tensor> {
-    const R: usize = 4;
+/// PhiFlow's `Noise(scale=10, smoothness=1)` on an `n x n` periodic grid, `[batch, channels,
+/// n, n]`: complex Gaussian Fourier coefficients with amplitude `1 / kappa^2` (`kappa` in
+/// periods per domain) above the scripts' high-pass cut at `kappa = 4.05` (their `k^2 > 0.1`
+/// with `k = 10 f` at 128 cells), the real part of the inverse transform, scaled to zero mean and
+/// unit standard deviation per batch entry (over channels and cells).
+pub fn spectral_noise(batch: usize, channels: usize, n: usize, seed: u64) -> Result<Tensor> {
     let dev = Device::Cpu;
-    let white = pbdl_core::seed::randn((batch, 1, n, n), 0.0, 1.0, DType::F64, &dev, seed)?;
-    let g: Vec<f64> = (0..2 * R + 1).map(|i| (-((i as f64 - R as f64) / 1.5).powi(2) / 2.0).exp()).collect();
-    let k: Vec<f64> = g.iter().flat_map(|a| g.iter().map(move |b| a * b)).collect();
-    // Unit variance of the blurred white noise: divide by the kernel's l2 norm.
-    let norm = k.iter().map(|v| v * v).sum::<f64>().sqrt();
-    let kernel = Tensor::from_vec(k.iter().map(|v| v / norm).collect::<Vec<_>>(), (1, 1, 2 * R + 1, 2 * R + 1), &dev)?;
-    let p = pbdl_core::conv::Conv2dParams::default().padding(R).circular();
-    Ok(pbdl_core::conv::conv2d(&white, &kernel, None, &p)?)
+    let cut2 = 0.1 * (SCRIPT_RES / 10.0) * (SCRIPT_RES / 10.0);
+    let freq = |k: usize| if k < n.div_ceil(2) { k as f64 } else { k as f64 - n as f64 };
+    let w: Vec<f64> = (0..n * n)
+        .map(|idx| {
+            let k2 = freq(idx / n).powi(2) + freq(idx % n).powi(2);
+            if k2 > cut2 {
+                1.0 / k2
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let w = Tensor::from_vec(w, (1, n, n), &dev)?;
+    let (co, si): (Vec<f64>, Vec<f64>) = (0..n * n)
+        .map(|idx| {
+            let a = 2.0 * PI * ((idx / n) * (idx % n)) as f64 / n as f64;
+            (a.cos(), a.sin())
+        })
+        .unzip();
+    let co = Tensor::from_vec(co, (n, n), &dev)?;
+    let si = Tensor::from_vec(si, (n, n), &dev)?;
+    let m = batch * channels;
+    // f32: the noise needs no more precision, and it is the main cost of the transport generators.
+    let coef = |seed: u64| -> Result<Tensor> {
+        let c = pbdl_core::seed::randn((m, n, n), 0.0, 1.0, DType::F32, &dev, seed)?;
+        Ok(c.broadcast_mul(&w.to_dtype(DType::F32)?)?)
+    };
+    let (cr, ci) = (coef(seed)?, coef(seed ^ 0x9e37_79b9_7f4a_7c15)?);
+    let (co, si) = (co.to_dtype(DType::F32)?, si.to_dtype(DType::F32)?);
+    // Re(E C E) with E = cos + i sin (symmetric): P + iQ = E C, then Re((P + iQ) E) = P cos - Q sin.
+    let p = (co.broadcast_matmul(&cr)? - si.broadcast_matmul(&ci)?)?;
+    let q = (co.broadcast_matmul(&ci)? + si.broadcast_matmul(&cr)?)?;
+    let f = (p.broadcast_matmul(&co)? - q.broadcast_matmul(&si)?)?.to_dtype(DType::F64)?;
+    let f = f.reshape((batch, channels * n * n))?;
+    let f = f.broadcast_sub(&f.mean_keepdim(1)?)?;
+    let std = f.sqr()?.mean_keepdim(1)?.sqrt()?;
+    Ok(f.broadcast_div(&std)?.reshape((batch, channels, n, n))?)
 }
 
-/// Advection-diffusion and Burgers. Every variant gets its own smooth noise at every step
-/// (amplitude `floor`, or `floor + t * amp` when the noise is the varied parameter), so that
-/// the variants also differ randomly, as in the papers' data; the varied parameter sets the
-/// systematic change.
-fn scalar_law(kind: Kind, param: Param, n: usize, rng: &mut StdRng) -> Result<Tensor> {
-    let h = 1.0 / n as f64;
-    let angle = rng.random_range(0.0..2.0 * PI);
-    let (speed, burgers, nu, amp) = match kind {
-        Kind::AdvectionDiffusion => (rng.random_range(0.5..1.0), 0.0, rng.random_range(2e-3..6e-3), 1.0),
-        _ => (0.0, 1.0, rng.random_range(0.012..0.02), rng.random_range(0.6..1.0)),
-    };
-    let law = |angle: f64, nu: f64| ScalarLaw {
-        dx: h,
-        dy: h,
-        velocity: [speed * angle.cos(), speed * angle.sin()],
-        burgers: [burgers; 2],
-        nu,
-    };
-    let c0 = (field_tensor(&smooth_field(n, 4, rng), n)? * amp)?;
-    let pert = field_tensor(&smooth_field(n, 6, rng), n)?;
-    let t_end = 0.6;
-    let tableau = ButcherTableau::rk4();
-    // |c| stays near max |c0| (maximum principle) plus perturbation and noise.
-    let bound = 4.0 * amp + 3.0;
-    let dt_stable = law(angle, nu * 2.0).stable_time_step(bound, n, &tableau) * 0.8;
-    let steps = (t_end / dt_stable).ceil() as usize;
-    let dt = t_end / steps as f64;
-    let frac = fractions();
-    let floor = NOISE_FLOOR * amp;
-    let noise_amp = rng.random_range(0.3..0.6) * amp;
-    let pert_amp = rng.random_range(0.4..0.8) * amp;
-    let noise_seed: u64 = rng.random();
-    let ts = Tensor::from_slice(&frac, (FRAMES, 1, 1, 1), &Device::Cpu)?;
-    let floor_all = (Tensor::ones((FRAMES, 1, 1, 1), DType::F64, &Device::Cpu)? * floor)?;
-    // Runs `c` ([b, 1, n, n]) with per-entry noise amplitudes `scale` ([b, 1, 1, 1]).
-    let run = |law: ScalarLaw, c: Tensor, scale: &Tensor, seed: u64| -> Result<Tensor> {
-        let mut c = c;
-        let b = c.dim(0)?;
-        for step in 0..steps {
-            c = law.step(&c, dt, &tableau).map_err(grid_err)?;
-            let eta = smooth_noise(b, n, seed.wrapping_add(step as u64))?;
-            c = (c + eta.broadcast_mul(scale)? * dt.sqrt())?;
+/// Random parameters of the scripts' `generateParams` in 2D: `[axis][component]` matrices.
+#[derive(Clone, Copy)]
+struct Waves {
+    f: [[[f64; 2]; 2]; 6],
+    f6: [[f64; 2]; 2],
+    o1: [[f64; 2]; 2],
+    o2: [[f64; 2]; 2],
+    fd: [[f64; 2]; 2],
+    od: [[f64; 2]; 2],
+    nu: f64,
+}
+
+impl Waves {
+    fn random(rng: &mut StdRng) -> Self {
+        fn m(rng: &mut StdRng, lo: f64, hi: f64) -> [[f64; 2]; 2] {
+            std::array::from_fn(|_| std::array::from_fn(|_| rng.random_range(lo..hi)))
         }
-        Ok(c)
-    };
-    match param {
-        Param::InitPerturbation => {
-            let c = c0.broadcast_add(&pert.broadcast_mul(&(&ts * pert_amp)?)?)?;
-            run(law(angle, nu), c, &floor_all, noise_seed)
+        let mut f = [
+            m(rng, -0.2, 0.2),
+            m(rng, -0.2, 0.2),
+            m(rng, -0.15, 0.15),
+            m(rng, -0.15, 0.15),
+            m(rng, -0.1, 0.1),
+            m(rng, -50.0, 50.0),
+        ];
+        let (o1, o2) = (m(rng, 0.0, 100.0), m(rng, 0.0, 100.0));
+        let nu = 0.0002 * (1.0 + rng.random_range(0.0..500.0));
+        // Smooth switch between a "static" (large initial velocity) and a "forced" case.
+        let sf = m(rng, 0.0, 1.0);
+        for fi in f.iter_mut().take(5) {
+            for a in 0..2 {
+                for c in 0..2 {
+                    fi[a][c] *= 1.0 + 2.0 * sf[a][c];
+                }
+            }
         }
-        Param::Noise => {
-            let c = c0.repeat((FRAMES, 1, 1, 1))?;
-            run(law(angle, nu), c, &((&ts * noise_amp)? + floor)?, noise_seed)
-        }
-        Param::Direction | Param::Viscosity => {
-            let one = floor_all.narrow(0, 0, 1)?;
-            let frames = frac
-                .iter()
-                .enumerate()
-                .map(|(k, &t)| {
-                    let l =
-                        if param == Param::Direction { law(angle + t * 0.5, nu) } else { law(angle, nu * (1.0 + t)) };
-                    run(l, c0.clone(), &one, noise_seed.wrapping_add(1_000_003 * k as u64))
-                })
-                .collect::<Result<Vec<_>>>()?;
-            Ok(Tensor::cat(&frames, 0)?)
-        }
-        _ => Err(Error::invalid("train::generate", "param", format!("{param:?} does not apply to {kind:?}"))),
+        let f6 = sf.map(|r| r.map(|s| (1.0 - s) * 0.1));
+        let fd = std::array::from_fn(|_| std::array::from_fn(|_| 1.0 / (1.0 + rng.random_range(0..6) as f64)));
+        let od = m(rng, 0.0, 100.0);
+        Self { f, f6, o1, o2, fd, od, nu }
     }
 }
 
-/// The smoke plume on an `n x n` box: one run per variant, each with its own density noise
-/// (amplitude `floor`, or growing with `t` when the noise is the varied parameter).
-fn smoke(param: Param, n: usize, rng: &mut StdRng) -> Result<Tensor> {
-    let x0 = rng.random_range(0.35..0.65);
+/// Per-variant steps of the scripts (`vf1`..`vf5`, `vf7`, `vo1`, `vo2`, `vod`, `vnoise`) and the
+/// constant noise strength, for the training kinds.
+fn steps_of(kind: Kind) -> ([f64; 10], f64) {
+    match kind {
+        Kind::AdvectionDiffusion => ([0.021, 0.010, 0.020, 0.035, 0.040, 0.300, 0.25, 0.15, 0.10, 0.005], 0.025),
+        _ => ([0.014, 0.005, 0.007, 0.015, 0.030, 0.300, 0.06, 0.12, 0.0, 0.01], 0.060),
+    }
+}
+
+/// `[11, 2, n, n]` of `sum_a f(variant, component, a, d_a)` with `d_0 = x`, `d_1 = y` in
+/// [0, 1): the scripts' fields are sums of one function per axis, so two 1D tables suffice.
+fn separable(n: usize, f: impl Fn(usize, usize, usize, f64) -> f64) -> Result<Tensor> {
+    let table = |a: usize| -> Vec<f64> {
+        (0..FRAMES * 2 * n).map(|idx| f(idx / (2 * n), (idx / n) % 2, a, (idx % n) as f64 / n as f64)).collect()
+    };
+    let gx = Tensor::from_vec(table(0), (FRAMES, 2, 1, n), &Device::Cpu)?;
+    let gy = Tensor::from_vec(table(1), (FRAMES, 2, n, 1), &Device::Cpu)?;
+    Ok(gx.broadcast_add(&gy)?)
+}
+
+/// Periodic 5-point Laplacian (cell units) of `[b, c, n, n]`.
+fn laplacian(x: &Tensor) -> Result<Tensor> {
+    let mut sum = (x * -4.0)?;
+    for dim in [2, 3] {
+        sum = ((sum + x.roll(1, dim)?)? + x.roll(-1, dim)?)?;
+    }
+    Ok(sum)
+}
+
+/// Advection-diffusion and Burgers as the scripts' PhiFlow solvers, in cell units (`dt = 1`).
+/// The eleven variants run as one batch with the varied parameter at `k` steps; velocities,
+/// forcing and noise are scaled by `n / 128` to keep the scripts' motion relative to the domain,
+/// the viscosity by `(n / 128)^2`.
+fn transport(kind: Kind, param: Param, sign: f64, n: usize, rng: &mut StdRng) -> Result<Tensor> {
+    let mut w = Waves::random(rng);
+    let (steps, strength) = steps_of(kind);
+    let noise_seed: u64 = rng.random();
+    let r = n as f64 / SCRIPT_RES;
+    let slot = match param {
+        Param::VelocityOffset => 0,
+        Param::Wave1 => 1,
+        Param::Wave2 => 2,
+        Param::Wave4 => 3,
+        Param::Wave8 => 4,
+        Param::ForcingShift => 5,
+        Param::Phase1 => 6,
+        Param::Phase2 => 7,
+        Param::DensityPhase if kind == Kind::AdvectionDiffusion => 8,
+        Param::Noise => 9,
+        _ => return Err(Error::invalid("train::generate", "param", format!("{param:?} does not apply to {kind:?}"))),
+    };
+    let step = sign * steps[slot];
+    let noise: Vec<f64> = (0..FRAMES).map(|k| if slot == 9 { steps[9] * k as f64 } else { strength }).collect();
+    // Parameters of variant `b`.
+    let var = |b: usize| -> Waves {
+        let mut v = w;
+        let add = |m: &mut [[f64; 2]; 2]| m.iter_mut().flatten().for_each(|x| *x += step * b as f64);
+        match slot {
+            0..=5 => add(&mut v.f[slot]),
+            6 => add(&mut v.o1),
+            7 => add(&mut v.o2),
+            8 => add(&mut v.od),
+            _ => {}
+        }
+        v
+    };
+    let vars: Vec<Waves> = (0..FRAMES).map(var).collect();
+    w.nu *= r * r;
+    let two_pi = 2.0 * PI;
+    // Initial velocity ("vectorComplex") and density ("scalarSimple", cubed).
+    let vel0 = (separable(n, |b, c, a, d| {
+        let p = &vars[b];
+        p.f[0][a][c]
+            + p.f[1][a][c] * (two_pi * d + p.o1[a][c]).sin()
+            + p.f[2][a][c] * (2.0 * two_pi * d + p.o2[a][c]).sin()
+            + p.f[3][a][c] * (4.0 * two_pi * d + 0.4 * p.o1[a][c]).sin()
+            + p.f[4][a][c] * (8.0 * two_pi * d + 0.3 * p.o2[a][c]).sin()
+    })? * r)?;
+    let dens0 = separable(n, |b, _, a, d| {
+        let p = &vars[b];
+        (0..2).map(|c| (p.fd[a][c] * d * 12.0 * two_pi + p.od[a][c]).sin()).sum::<f64>()
+    })?
+    .narrow(1, 0, 1)?;
+    let dens0 = (&dens0 * &dens0)?.mul(&dens0)?.contiguous()?;
+    let grid = Grid::square(n, n as f64).map_err(grid_err)?;
+    let mut vel = MacField::new(vel0, grid, Boundaries::periodic()).map_err(grid_err)?;
+    let mut dens = CenteredField::new(dens0, grid, ScalarBoundaries::periodic()).map_err(grid_err)?;
+    let strengths = Tensor::from_vec(noise, (FRAMES, 1, 1, 1), &Device::Cpu)?;
+    for age in 0..STEPS {
+        // Forcing ("vectorForcing") of this step; its time dependence uses the scripts' age / 128.
+        let t = age as f64 / SCRIPT_RES;
+        let force = (separable(n, |b, c, a, d| {
+            let p = &vars[b];
+            let d = d + (0.5 * p.f[5][a][c] + p.f[5][a][c] * (t * 3.0).sin()) / SCRIPT_RES;
+            (p.f[1][a][c] * (two_pi * d).sin()
+                + p.f[2][a][c] * (2.0 * two_pi * d + p.o1[a][c]).sin()
+                + p.f[3][a][c] * (4.0 * two_pi * d + p.o2[a][c]).sin()
+                + p.f[4][a][c] * (8.0 * two_pi * d + 0.7 * p.o1[a][c]).sin())
+                * p.f6[a][c]
+        })? * r)?;
+        let eta = spectral_noise(FRAMES, 2, n, noise_seed.wrapping_add(age as u64))?.broadcast_mul(&strengths)?;
+        if kind == Kind::AdvectionDiffusion {
+            let d = semi_lagrangian(&dens, &vel, 1.0).map_err(grid_err)?;
+            let d = (d.values() + (laplacian(d.values())? * w.nu)?)?;
+            dens = dens.with_values(d).map_err(grid_err)?;
+        } else {
+            let u = semi_lagrangian(&vel, &vel, 1.0).map_err(grid_err)?;
+            let u = (u.values() + (laplacian(u.values())? * (0.1 * w.nu))?)?;
+            vel = vel.with_values(u).map_err(grid_err)?;
+        }
+        let u = ((vel.values() + force)? + (eta * r)?)?;
+        vel = vel.with_values(u).map_err(grid_err)?;
+    }
+    Ok(match kind {
+        Kind::AdvectionDiffusion => dens.values().clone(),
+        _ => vel.values().narrow(1, 0, 1)?.contiguous()?,
+    })
+}
+
+/// The smoke plume on an `n x n` box, one run per variant. At every step Gaussian white noise of
+/// [`SMOKE_NOISE`] times the current maximum speed is added to every velocity face, drawn anew
+/// per variant and step; when the noise is the varied parameter, uniform noise of `0.017 k`
+/// (relative) with one seed shared by all variants instead (the mantaflow script's modes).
+/// Per variant `k` the source moves by `k / 128` of the box (one cell of the script's 128) or the
+/// buoyancy grows by `1.7 k` per cent.
+fn smoke(param: Param, sign: f64, n: usize, rng: &mut StdRng) -> Result<Tensor> {
+    let x0 = rng.random_range(0.4..0.6);
     let radius = rng.random_range(0.06..0.1);
     let buoy = rng.random_range(0.6..1.4);
     let steps = rng.random_range(50..70);
-    let dx_shift = rng.random_range(0.06..0.12) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-    let noise_amp = rng.random_range(0.5..1.0);
     let noise_seed: u64 = rng.random();
-    let frames = fractions()
-        .iter()
-        .enumerate()
-        .map(|(k, &t)| {
+    let frames = (0..FRAMES)
+        .map(|k| {
+            let kf = k as f64;
             let (x, b) = match param {
-                Param::SourcePosition => (x0 + t * dx_shift, buoy),
-                Param::Buoyancy => (x0, buoy * (1.0 + 0.5 * t)),
+                Param::SourcePosition => (x0 + sign * kf / SCRIPT_RES, buoy),
+                Param::Buoyancy => (x0, buoy * (1.0 + 0.017 * kf)),
                 _ => (x0, buoy),
             };
-            let amp = SMOKE_NOISE_FLOOR + if param == Param::Noise { t * noise_amp } else { 0.0 };
             let text = format!(
                 "name = \"metric_smoke\"\n[grid]\nnx = {n}\nny = {n}\nlx = 1.0\nly = 1.0\n\
                  [physics]\nkind = \"smoke\"\nnu = 0.0\nbuoyancy = {b}\n\
@@ -336,19 +448,29 @@ fn smoke(param: Param, n: usize, rng: &mut StdRng) -> Result<Tensor> {
                  [time]\nsteps = {steps}\ncfl = 0.5\nspeed = 1.0\nframes = 2\n"
             );
             let mut sim = Scene::from_toml_str(&text, "metric_smoke").and_then(|s| s.build()).map_err(grid_err)?;
-            let dt = sim.dt();
-            let seed = noise_seed.wrapping_add(1_000_003 * k as u64);
+            let shared = param == Param::Noise;
             for step in 0..steps {
                 sim.step().map_err(grid_err)?;
-                if amp > 0.0 {
-                    let rho = sim.fields().map_err(grid_err)?.into_iter().find(|(name, _)| name == "density");
-                    if let Some((name, rho)) = rho {
-                        let eta = smooth_noise(1, n, seed.wrapping_add(step as u64))?;
-                        let add = (eta.to_dtype(rho.dtype())? * (amp * dt.sqrt()))?;
-                        let rho = (&rho + add.reshape(rho.shape())?)?;
-                        sim.set_fields(&[(name, rho)]).map_err(grid_err)?;
-                    }
+                let fields = sim.fields().map_err(grid_err)?;
+                let Some((_, u)) = fields.into_iter().find(|(name, _)| name == "velocity_mac") else {
+                    return Err(Error::invalid("train::generate", "smoke", "the smoke scene has no velocity_mac"));
+                };
+                let speed = u.abs()?.flatten_all()?.max(0)?.to_dtype(DType::F64)?.to_scalar::<f64>()?;
+                if speed == 0.0 || (shared && k == 0) {
+                    continue;
                 }
+                let seed = if shared {
+                    noise_seed.wrapping_add(step as u64)
+                } else {
+                    noise_seed.wrapping_add(1_000_003 * (k as u64 + 1)).wrapping_add(step as u64)
+                };
+                let eta = if shared {
+                    let a = 0.017 * kf * speed;
+                    pbdl_core::seed::rand_uniform(u.shape(), -a, a, u.dtype(), &Device::Cpu, seed)?
+                } else {
+                    pbdl_core::seed::randn(u.shape(), 0.0, SMOKE_NOISE * speed, u.dtype(), &Device::Cpu, seed)?
+                };
+                sim.set_fields(&[("velocity_mac".to_string(), (&u + eta)?)]).map_err(grid_err)?;
             }
             let rho = sim
                 .state()
@@ -360,34 +482,65 @@ fn smoke(param: Param, n: usize, rng: &mut StdRng) -> Result<Tensor> {
     Ok(Tensor::cat(&frames, 0)?)
 }
 
-/// A smooth disc moved and grown along a line over a smooth random background, plus independent
-/// smooth noise of amplitude [`SHAPES_NOISE`] per frame.
-fn shapes(n: usize, rng: &mut StdRng) -> Result<Tensor> {
-    let bg = smooth_field(n, 3, rng);
-    let bg_amp = rng.random_range(0.1..0.4);
-    let (cx, cy) = (rng.random_range(0.3..0.7), rng.random_range(0.3..0.7));
-    let ang = rng.random_range(0.0..2.0 * PI);
-    let shift = rng.random_range(0.1..0.25);
-    let r0 = rng.random_range(0.08..0.15);
-    let dr = rng.random_range(-0.04..0.04);
-    let noise = smooth_noise(FRAMES, n, rng.random())?.squeeze(1)?.to_vec3::<f64>()?;
-    let frames = fractions()
-        .iter()
-        .enumerate()
-        .map(|(k, &t)| {
-            let (px, py, r) = (cx + t * shift * ang.cos(), cy + t * shift * ang.sin(), r0 + t * dr);
+/// The scripts' shapes: 1 to 5 discs or squares (even odds) each moving from a random start to a
+/// random end at least `0.3 n` away (positions kept a quarter of the path from the walls), radius
+/// 10-20 % of the path (squares: half side `0.85 r`), value 1 on 0. `mode` (sequence index mod
+/// 4): 0 hard edges, 1 smoothed edges, 2 hard with white noise, 3 smoothed with white noise
+/// (standard deviation [`SHAPES_NOISE`], new per frame).
+fn shapes(mode: usize, n: usize, rng: &mut StdRng) -> Result<Tensor> {
+    let nf = n as f64;
+    let count = rng.random_range(1..6);
+    let shapes: Vec<(bool, [f64; 2], [f64; 2], f64)> = (0..count)
+        .map(|_| loop {
+            let mut s = [rng.random_range(0.0..nf), rng.random_range(0.0..nf)];
+            let mut e = [rng.random_range(0.0..nf), rng.random_range(0.0..nf)];
+            let m = 0.25 * ((e[0] - s[0]).powi(2) + (e[1] - s[1]).powi(2)).sqrt();
+            for p in [&mut s, &mut e] {
+                p.iter_mut().for_each(|x| *x = x.clamp(m, nf - m));
+            }
+            let dist = ((e[0] - s[0]).powi(2) + (e[1] - s[1]).powi(2)).sqrt();
+            if dist > 0.3 * nf {
+                let r = rng.random_range(0.1..0.2) * dist;
+                break (rng.random_bool(0.5), s, e, r);
+            }
+        })
+        .collect();
+    let smooth = mode % 2 == 1;
+    let noisy = mode >= 2;
+    let seed: u64 = rng.random();
+    let frames = (0..FRAMES)
+        .map(|k| {
+            let t = k as f64 / (FRAMES - 1) as f64;
             let mut v = vec![0.0; n * n];
-            for (j, row) in v.chunks_mut(n).enumerate() {
-                for (i, out) in row.iter_mut().enumerate() {
-                    let (x, y) = ((i as f64 + 0.5) / n as f64, (j as f64 + 0.5) / n as f64);
-                    let d = ((x - px).powi(2) + (y - py).powi(2)).sqrt();
-                    // A disc with a smooth (tanh) rim a few cells wide.
-                    let eta = noise[k][j][i];
-                    *out =
-                        0.5 * (1.0 - ((d - r) * n as f64 / 2.0).tanh()) + bg_amp * bg[j * n + i] + SHAPES_NOISE * eta;
+            for &(disc, s, e, r) in &shapes {
+                let p = [s[0] + t * (e[0] - s[0]), s[1] + t * (e[1] - s[1])];
+                for (idx, out) in v.iter_mut().enumerate() {
+                    let (x, y) = ((idx % n) as f64 + 0.5 - p[0], (idx / n) as f64 + 0.5 - p[1]);
+                    // Signed distance to the boundary (cells), negative inside.
+                    let sd = if disc {
+                        (x * x + y * y).sqrt() - r
+                    } else {
+                        let h = 0.85 * r;
+                        let (qx, qy) = (x.abs() - h, y.abs() - h);
+                        (qx.max(0.0).powi(2) + qy.max(0.0).powi(2)).sqrt() + qx.max(qy).min(0.0)
+                    };
+                    let val = if smooth {
+                        (0.5 - sd / 2.0).clamp(0.0, 1.0)
+                    } else if sd <= 0.0 {
+                        1.0
+                    } else {
+                        0.0
+                    };
+                    *out = f64::max(*out, val);
                 }
             }
-            field_tensor(&v, n)
+            let mut f = Tensor::from_vec(v, (1, 1, n, n), &Device::Cpu)?;
+            if noisy {
+                let eta =
+                    pbdl_core::seed::randn((1, 1, n, n), 0.0, SHAPES_NOISE, DType::F64, &Device::Cpu, seed + k as u64)?;
+                f = (f + eta)?;
+            }
+            Ok(f)
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(Tensor::cat(&frames, 0)?)

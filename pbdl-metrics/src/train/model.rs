@@ -6,8 +6,9 @@
 //! on scalar fields: one input channel (the published net repeats a scalar to three), an
 //! optional channel-width multiplier ([`MetricNetConfig::width`], 1.0 = the published widths
 //! 32/96/192/128/128), inputs at their own size (no resize to 224; the statistics are computed
-//! at that size), one min/max mapping to [0, 255] per sequence (all frames of a sequence jointly),
-//! and no dropout on the channel weights.
+//! at that size), and one min/max mapping to [0, 255] per sequence (all frames of a sequence
+//! jointly). Training can apply the published dropout (p = 0.5 on the weighted squared feature
+//! differences, [`MetricNet::pair_distances_dropout`]).
 //!
 //! The distance of a pair is the published one: `d = sqrt( sum_l mean_(h,w) sum_c w_(l,c)
 //! (n_l(b) - n_l(a))^2 )`, `n = (phi - mu) / (sqrt(M2 / (count - 1)) + 1e-10) / (sqrt(C) - 1)`,
@@ -283,6 +284,51 @@ impl MetricNet {
             let dt = f.dtype();
             let (mean, std) = norm_stats(&st.mean.to_dtype(dt)?, &st.m2.to_dtype(dt)?, st.count, &f.dims()[2..])?;
             let layer = layer_distance(&f.index_select(&ia, 0)?, &f.index_select(&ib, 0)?, &mean, &std, lin)?;
+            total = Some(match total {
+                None => layer,
+                Some(t) => (t + layer)?,
+            });
+        }
+        Ok(total.expect("five layers").sqrt()?)
+    }
+
+    /// [`MetricNet::pair_distances`] with dropout as in the published training: every element of
+    /// each layer's squared normalised difference `(n_l(b) - n_l(a))^2` is zeroed with
+    /// probability `p` and the rest scaled by `1 / (1 - p)` before the channel weights (PyTorch's
+    /// `Dropout` in front of the 1x1 weighting conv). `p = 0` gives [`MetricNet::pair_distances`].
+    pub fn pair_distances_dropout(
+        &self,
+        feats: &[Tensor],
+        pairs: &[(usize, usize)],
+        p: f64,
+        seed: u64,
+    ) -> Result<Tensor> {
+        if !(0.0..1.0).contains(&p) {
+            return Err(Error::invalid("MetricNet::pair_distances_dropout", "p", format!("need 0 <= p < 1, got {p}")));
+        }
+        if p == 0.0 {
+            return self.pair_distances(feats, pairs);
+        }
+        // Checks shapes and statistics the same way as the plain path (on the first pair only).
+        self.pair_distances(feats, &pairs[..pairs.len().min(1)])?;
+        let stats = self.stats.as_ref().expect("checked above");
+        let dev = Device::Cpu;
+        let ia = Tensor::from_vec(pairs.iter().map(|q| q.0 as u32).collect::<Vec<_>>(), pairs.len(), &dev)?;
+        let ib = Tensor::from_vec(pairs.iter().map(|q| q.1 as u32).collect::<Vec<_>>(), pairs.len(), &dev)?;
+        let mut total: Option<Tensor> = None;
+        for (l, ((f, st), lin)) in feats.iter().zip(stats).zip(&self.lin).enumerate() {
+            let dt = f.dtype();
+            let (mean, std) = norm_stats(&st.mean.to_dtype(dt)?, &st.m2.to_dtype(dt)?, st.count, &f.dims()[2..])?;
+            let den = (std + 1e-10)?;
+            let scale = 1.0 / ((f.dim(1)? as f64).sqrt() - 1.0);
+            let norm = |x: &Tensor| -> Result<Tensor> { Ok((x.broadcast_sub(&mean)?.broadcast_div(&den)? * scale)?) };
+            let diff = (norm(&f.index_select(&ib, 0)?)? - norm(&f.index_select(&ia, 0)?)?)?.sqr()?;
+            let keep =
+                pbdl_core::seed::rand_uniform(diff.shape(), 0.0, 1.0, DType::F64, &dev, seed.wrapping_add(l as u64))?
+                    .ge(p)?
+                    .to_dtype(dt)?;
+            let diff = (diff * keep)? * (1.0 / (1.0 - p));
+            let layer = diff?.broadcast_mul(lin.as_tensor())?.sum(1)?.flatten_from(1)?.mean(1)?;
             total = Some(match total {
                 None => layer,
                 Some(t) => (t + layer)?,
