@@ -23,14 +23,7 @@ pub struct StabilityReport {
 /// viscosity `nu` (`f64::INFINITY` when nothing moves or diffuses).
 pub fn stable_time_step(grid: &Grid, max_speed: [f64; 2], nu: f64, tableau: &ButcherTableau) -> f64 {
     let (adv, diff) = rates(grid, max_speed, nu);
-    let imag = if adv > 0.0 { adv / tableau.imag_limit } else { 0.0 };
-    let real = if diff > 0.0 { diff / tableau.real_limit } else { 0.0 };
-    let s = imag + real;
-    if s > 0.0 {
-        1.0 / s
-    } else {
-        f64::INFINITY
-    }
+    stable_time_step_for_rates(adv, diff, tableau)
 }
 
 /// Checks `dt` against [`stable_time_step`]; an [`Error::Unstable`] names the dominant number.
@@ -41,22 +34,49 @@ pub fn check_time_step(
     tableau: &ButcherTableau,
     dt: f64,
 ) -> Result<StabilityReport> {
+    let (adv, diff) = rates(grid, max_speed, nu);
+    let names = ("advective CFL number dt (|u|/dx + |v|/dy)", "diffusion number dt nu (4/dx^2 + 4/dy^2)");
+    check_rates(adv, diff, &max_speed, tableau, dt, names)
+}
+
+/// `1 / (adv / imag_limit + diff / real_limit)` for the advective rate `adv` (sum of |u_d|/dx_d)
+/// and the diffusive rate `diff` (largest viscous eigenvalue magnitude), in any dimension.
+pub(crate) fn stable_time_step_for_rates(adv: f64, diff: f64, tableau: &ButcherTableau) -> f64 {
+    let imag = if adv > 0.0 { adv / tableau.imag_limit } else { 0.0 };
+    let real = if diff > 0.0 { diff / tableau.real_limit } else { 0.0 };
+    let s = imag + real;
+    if s > 0.0 {
+        1.0 / s
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// The check behind [`check_time_step`] for given rates, in any dimension; `names` are the
+/// advective and diffusive numbers as the error message should spell them.
+pub(crate) fn check_rates(
+    adv: f64,
+    diff: f64,
+    max_speed: &[f64],
+    tableau: &ButcherTableau,
+    dt: f64,
+    names: (&'static str, &'static str),
+) -> Result<StabilityReport> {
     if !(dt > 0.0 && dt.is_finite()) {
         return Err(Error::Invalid { field: "dt", reason: format!("time step must be positive and finite, got {dt}") });
     }
-    if !max_speed.iter().all(|s| s.is_finite()) {
-        return Err(Error::NonFinite { what: "velocity", value: max_speed[0].max(max_speed[1]) });
+    if let Some(&value) = max_speed.iter().find(|s| !s.is_finite()) {
+        return Err(Error::NonFinite { what: "velocity", value });
     }
-    let (adv, diff) = rates(grid, max_speed, nu);
-    let stable_dt = stable_time_step(grid, max_speed, nu, tableau);
+    let stable_dt = stable_time_step_for_rates(adv, diff, tableau);
     let report = StabilityReport { cfl: dt * adv, diffusion_number: dt * diff, stable_dt };
     if dt > stable_dt * (1.0 + 1e-12) {
         let adv_part = if adv > 0.0 { adv / tableau.imag_limit } else { 0.0 };
         let diff_part = if diff > 0.0 { diff / tableau.real_limit } else { 0.0 };
         let (what, value, limit) = if adv_part >= diff_part {
-            ("advective CFL number dt (|u|/dx + |v|/dy)", report.cfl, tableau.imag_limit)
+            (names.0, report.cfl, tableau.imag_limit)
         } else {
-            ("diffusion number dt nu (4/dx^2 + 4/dy^2)", report.diffusion_number, tableau.real_limit)
+            (names.1, report.diffusion_number, tableau.real_limit)
         };
         return Err(Error::Unstable { what, value, limit, scheme: tableau.name.clone(), dt, stable_dt });
     }

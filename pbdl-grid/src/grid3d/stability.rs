@@ -6,25 +6,18 @@
 //! real_limit) <= 1`.
 
 use super::Grid3d;
-use crate::stability::StabilityReport;
+use crate::stability::{check_rates, stable_time_step_for_rates, StabilityReport};
 use crate::time_stepping::ButcherTableau;
-use crate::{Error, Result};
+use crate::Result;
 
 /// The largest stable time step of `tableau` for the largest speeds `[|u|, |v|, |w|]` and
 /// viscosity `nu` (`f64::INFINITY` when nothing moves or diffuses).
 pub fn stable_time_step(grid: &Grid3d, max_speed: [f64; 3], nu: f64, tableau: &ButcherTableau) -> f64 {
     let (adv, diff) = rates(grid, max_speed, nu);
-    let imag = if adv > 0.0 { adv / tableau.imag_limit } else { 0.0 };
-    let real = if diff > 0.0 { diff / tableau.real_limit } else { 0.0 };
-    let s = imag + real;
-    if s > 0.0 {
-        1.0 / s
-    } else {
-        f64::INFINITY
-    }
+    stable_time_step_for_rates(adv, diff, tableau)
 }
 
-/// Checks `dt` against [`stable_time_step`]; an [`Error::Unstable`] names the dominant number.
+/// Checks `dt` against [`stable_time_step`]; an [`crate::Error::Unstable`] names the dominant number.
 /// In the report, `cfl` is `dt (|u|/dx + |v|/dy + |w|/dz)` and `diffusion_number` is
 /// `4 dt nu (1/dx^2 + 1/dy^2 + 1/dz^2)`.
 pub fn check_time_step(
@@ -34,26 +27,10 @@ pub fn check_time_step(
     tableau: &ButcherTableau,
     dt: f64,
 ) -> Result<StabilityReport> {
-    if !(dt > 0.0 && dt.is_finite()) {
-        return Err(Error::Invalid { field: "dt", reason: format!("time step must be positive and finite, got {dt}") });
-    }
-    if let Some(&value) = max_speed.iter().find(|s| !s.is_finite()) {
-        return Err(Error::NonFinite { what: "velocity", value });
-    }
     let (adv, diff) = rates(grid, max_speed, nu);
-    let stable_dt = stable_time_step(grid, max_speed, nu, tableau);
-    let report = StabilityReport { cfl: dt * adv, diffusion_number: dt * diff, stable_dt };
-    if dt > stable_dt * (1.0 + 1e-12) {
-        let adv_part = if adv > 0.0 { adv / tableau.imag_limit } else { 0.0 };
-        let diff_part = if diff > 0.0 { diff / tableau.real_limit } else { 0.0 };
-        let (what, value, limit) = if adv_part >= diff_part {
-            ("advective CFL number dt (|u|/dx + |v|/dy + |w|/dz)", report.cfl, tableau.imag_limit)
-        } else {
-            ("diffusion number 4 dt nu (1/dx^2 + 1/dy^2 + 1/dz^2)", report.diffusion_number, tableau.real_limit)
-        };
-        return Err(Error::Unstable { what, value, limit, scheme: tableau.name.clone(), dt, stable_dt });
-    }
-    Ok(report)
+    let names =
+        ("advective CFL number dt (|u|/dx + |v|/dy + |w|/dz)", "diffusion number 4 dt nu (1/dx^2 + 1/dy^2 + 1/dz^2)");
+    check_rates(adv, diff, &max_speed, tableau, dt, names)
 }
 
 fn rates(grid: &Grid3d, max_speed: [f64; 3], nu: f64) -> (f64, f64) {
