@@ -6,8 +6,14 @@
 //! * bench `dipole`: the same on the HIG paper's quantum dipole (infidelity loss, J 448x9484).
 //! * bench `cartpole`: final test loss of stabilized-BPTT modes F, P, C for 1-4 poles
 //!   (shortened runs) and a PNG of loss against the number of poles.
+//! * bench `guidance`: final test loss of stabilized-BPTT modes F, P, C on guidance by repulsion
+//!   for control-cost weights `rc = 1, 0.1, 0.01, 0.001` and a PNG of loss against `rc`.
+//! * bench `quantum_control`: final test loss of modes F, P, C for target eigenstates 3, 4, 5
+//!   (shortened runs) and a PNG of loss against the target.
 //! * bench `racecar_alignment`: alignment of the first layer's leading singular vectors with
 //!   the training data span, racecar vs plain (`error` is the smallest `|cos|`, higher is better).
+//! * bench `racecar_peak`: the same for plain / orthogonality / racecar training of the paper's
+//!   BN + ReLU peak model and a small conv net on procedural peak images.
 //! * tour `hig_vs_adam`: the same on the linear chain with a short budget.
 
 use crate::hig::{run_curve_with_loss, Budget, Curve, Decomposition, HigConfig, Loss, Method};
@@ -49,9 +55,24 @@ pub fn tasks() -> CrateTasks {
                 run: bench_cartpole,
             },
             Entry {
+                name: "guidance",
+                about: "Stabilized BPTT: final test loss of gradient modes F, P, C on guidance by repulsion (2 drivers, 4 evaders) for rc = 1 .. 0.001.",
+                run: bench_guidance,
+            },
+            Entry {
+                name: "quantum_control",
+                about: "Stabilized BPTT: final test loss of gradient modes F, P, C on quantum control to eigenstates 3, 4, 5 (short runs).",
+                run: bench_quantum_control,
+            },
+            Entry {
                 name: "racecar_alignment",
                 about: "racecar vs plain training: |cos| of the first layer's leading singular vectors with the span of the training inputs.",
                 run: bench_racecar_alignment,
+            },
+            Entry {
+                name: "racecar_peak",
+                about: "racecar vs orthogonality vs plain on peak images, BN+ReLU MLP and conv net: |cos| of the first layer's leading singular vectors with the data's principal subspace.",
+                run: bench_racecar_peak,
             },
         ],
         stress: vec![],
@@ -337,5 +358,148 @@ fn bench_racecar_alignment(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
             }
         }
     }
+    Ok(rows)
+}
+
+fn bench_racecar_peak(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    use crate::racecar::peak_experiment::{peak_alignment_experiment, PeakConfig, PeakNet, Regularizer};
+    // Quick mode shortens the paper's 5000 full-batch steps; its rows say how many were run.
+    let cfg = PeakConfig { steps: if ctx.quick { 500 } else { 5000 }, ..Default::default() };
+    let regs = [Regularizer::Plain, Regularizer::Orthogonality, Regularizer::Racecar];
+    let runs = peak_alignment_experiment(&cfg, &[PeakNet::Mlp, PeakNet::Conv], &regs)?;
+    let mut rows = Vec::new();
+    for r in &runs {
+        let net = match r.net {
+            PeakNet::Mlp => "mlp",
+            PeakNet::Conv => "conv",
+        };
+        for (value, kind) in [
+            (r.min_cos(), format!("min_abs_cos_lead{}_with_{}dim_data_subspace", cfg.lead, r.subspace_dim)),
+            (r.task_loss, "train_cross_entropy".to_string()),
+        ] {
+            rows.push(BenchRow {
+                case: format!("racecar_peak_{net}"),
+                method: r.regularizer.name().into(),
+                size: format!("in{}_steps{}", r.ambient_dim, cfg.steps),
+                seconds: r.seconds / cfg.steps as f64,
+                unit: "step".into(),
+                error: Some(value),
+                error_kind: kind,
+                peer: false,
+                threads: ctx.threads,
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// Rows and a PNG for a mode comparison: `finals[mode][case]`.
+struct ModeTable<'a> {
+    png: &'a str,
+    title: String,
+    x_label: &'a str,
+    y_label: &'a str,
+    xs: Vec<f64>,
+    log_x: bool,
+}
+
+fn plot_modes(ctx: &TaskContext, t: &ModeTable<'_>, modes: &[&str], finals: &[Vec<f64>]) -> TaskResult<()> {
+    let series: Vec<Series> = modes
+        .iter()
+        .zip(finals)
+        .map(|(name, ys)| Series::new(format!("mode {name}"), t.xs.clone(), ys.clone()))
+        .collect();
+    line_plot(
+        ctx.out_dir.join(t.png),
+        &series,
+        &PlotStyle {
+            title: t.title.clone(),
+            x_label: t.x_label.into(),
+            y_label: t.y_label.into(),
+            log_x: t.log_x,
+            ..Default::default()
+        },
+    )?;
+    Ok(())
+}
+
+fn bench_guidance(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    use crate::bptt::GradientMode;
+    use crate::guidance::{train, GuidanceConfig};
+    // The paper's full setup (10 epochs of 32 steps, lr 1e-3, b 8, no clipping); quick: 1 epoch.
+    let iterations = if ctx.quick { 32 } else { 320 };
+    let modes = [("F", GradientMode::F), ("P", GradientMode::P), ("C", GradientMode::C)];
+    let rcs = [1.0, 0.1, 0.01, 0.001];
+    let mut rows = Vec::new();
+    let mut finals: Vec<Vec<f64>> = vec![Vec::new(); modes.len()];
+    for rc in rcs {
+        for (k, (name, mode)) in modes.iter().enumerate() {
+            let mut cfg = GuidanceConfig::new(rc, *mode, iterations);
+            cfg.eval_every = iterations;
+            let run = train(&cfg)?;
+            finals[k].push(run.final_loss());
+            rows.push(BenchRow {
+                case: format!("guidance_rc{rc}"),
+                method: name.to_string(),
+                size: format!("b{}_steps{iterations}", cfg.batch),
+                seconds: run.seconds / iterations as f64,
+                unit: "step".into(),
+                error: Some(run.final_loss()),
+                error_kind: "test_loss_mean_xe2_plus_rc_mean_c2".into(),
+                peer: false,
+                threads: ctx.threads,
+            });
+        }
+    }
+    let table = ModeTable {
+        png: "guidance_modes.png",
+        title: format!("guidance by repulsion: test loss after {iterations} Adam steps (lr 1e-3, b 8)"),
+        x_label: "control cost weight rc (log)",
+        y_label: "test loss",
+        xs: rcs.to_vec(),
+        log_x: true,
+    };
+    plot_modes(ctx, &table, &modes.map(|m| m.0), &finals)?;
+    Ok(rows)
+}
+
+fn bench_quantum_control(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    use crate::bptt::GradientMode;
+    use crate::quantum_control::{train, QuantumControlConfig};
+    // Shortened: the paper trains 1000 epochs (32000 Adam steps); here 10 epochs (quick: 16
+    // steps) with the paper's physics, data sizes, network, batch and lr, no clipping.
+    let iterations = if ctx.quick { 16 } else { 320 };
+    let modes = [("F", GradientMode::F), ("P", GradientMode::P), ("C", GradientMode::C)];
+    let targets = [3usize, 4, 5];
+    let mut rows = Vec::new();
+    let mut finals: Vec<Vec<f64>> = vec![Vec::new(); modes.len()];
+    for target in targets {
+        for (k, (name, mode)) in modes.iter().enumerate() {
+            let mut cfg = QuantumControlConfig::new(target, *mode, iterations);
+            cfg.eval_every = iterations;
+            let run = train(&cfg)?;
+            finals[k].push(run.final_loss());
+            rows.push(BenchRow {
+                case: format!("quantum_control_target{target}"),
+                method: name.to_string(),
+                size: format!("b{}_steps{iterations}", cfg.batch),
+                seconds: run.seconds / iterations as f64,
+                unit: "step".into(),
+                error: Some(run.final_loss()),
+                error_kind: "test_loss_sum_1_minus_fidelity_over_128_steps".into(),
+                peer: false,
+                threads: ctx.threads,
+            });
+        }
+    }
+    let table = ModeTable {
+        png: "quantum_control_modes.png",
+        title: format!("quantum control: test loss after {iterations} Adam steps (lr 1e-3, b 8)"),
+        x_label: "target eigenstate",
+        y_label: "test loss sum (1 - fidelity), 0..128",
+        xs: targets.iter().map(|t| *t as f64).collect(),
+        log_x: false,
+    };
+    plot_modes(ctx, &table, &modes.map(|m| m.0), &finals)?;
     Ok(rows)
 }

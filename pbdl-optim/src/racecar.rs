@@ -1,4 +1,4 @@
-//! racecar ("Reviving Autoencoder Pretraining", Mi et al.): a reverse-pass reconstruction loss
+//! racecar ("Reviving Autoencoder Pretraining", Xie and Thuerey): a reverse-pass reconstruction loss
 //! with transposed shared weights, for dense networks, and the SVD analysis of what it does to
 //! the weights.
 //!
@@ -13,6 +13,20 @@
 //! the training inputs. [`span_alignment`] measures that (`|cos|` between each singular vector
 //! and the span), and [`alignment_experiment`] compares a racecar-trained network with a plain
 //! one on inputs that lie in a low-dimensional subspace.
+//!
+//! The submodules add batch norm ([`batch_norm`], [`bn_mlp`]: the paper's peak model), conv
+//! nets ([`conv_net`]: the reverse pass of a conv is the transposed conv with the same
+//! weights), the orthogonality baseline ([`ortho`]), procedural peak images ([`peak`]), the
+//! alignment with a principal subspace ([`svd`]) and the plain / orthogonality / racecar
+//! comparison on peak images ([`peak_experiment`]).
+
+pub mod batch_norm;
+pub mod bn_mlp;
+pub mod conv_net;
+pub mod ortho;
+pub mod peak;
+pub mod peak_experiment;
+pub mod svd;
 
 use crate::error::Result;
 use candle_core::{DType, Device, Tensor, Var};
