@@ -131,3 +131,23 @@ pub fn gradients(
     let norm_before_clip = clip.apply(&mut grads, vars)?;
     Ok(BpttGradients { loss: value, grads, norm_before_clip, agreement })
 }
+
+/// What a stabilized-BPTT training run measured (cart-pole, guidance, quantum control).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct BpttRun {
+    /// Steps done at each evaluation.
+    pub steps: Vec<usize>,
+    /// Test loss at each evaluation (each experiment documents its loss).
+    pub test_loss: Vec<f64>,
+    /// Training seconds (evaluation excluded).
+    pub seconds: f64,
+    /// Mode C: mean fraction of gradient components whose signs agreed.
+    pub agreement: Option<f64>,
+}
+
+impl BpttRun {
+    /// The last test loss.
+    pub fn final_loss(&self) -> f64 {
+        self.test_loss.last().copied().unwrap_or(f64::NAN)
+    }
+}

@@ -190,25 +190,8 @@ impl CartPoleConfig {
     }
 }
 
-/// What a cart-pole run measured.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct CartPoleRun {
-    /// Steps done at each evaluation.
-    pub steps: Vec<usize>,
-    /// Test loss `1 - mean cos th` at each evaluation.
-    pub test_loss: Vec<f64>,
-    /// Training seconds (evaluation excluded).
-    pub seconds: f64,
-    /// Mode C: mean fraction of gradient components whose signs agreed.
-    pub agreement: Option<f64>,
-}
-
-impl CartPoleRun {
-    /// The last test loss.
-    pub fn final_loss(&self) -> f64 {
-        self.test_loss.last().copied().unwrap_or(f64::NAN)
-    }
-}
+/// What a cart-pole run measured (test loss `1 - mean cos th`).
+pub type CartPoleRun = crate::bptt::BpttRun;
 
 /// Test loss of `net` on `test` episodes (a forward rollout, no gradient).
 pub fn evaluate(physics: &CartPole, net: &Controller, test: &Tensor) -> Result<f64> {

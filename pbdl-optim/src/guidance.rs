@@ -368,25 +368,8 @@ impl GuidanceConfig {
     }
 }
 
-/// What a training run measured.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct GuidanceRun {
-    /// Steps done at each evaluation.
-    pub steps: Vec<usize>,
-    /// Test loss (with the control cost) at each evaluation.
-    pub test_loss: Vec<f64>,
-    /// Training seconds (evaluation excluded).
-    pub seconds: f64,
-    /// Mode C: mean fraction of gradient components whose signs agreed.
-    pub agreement: Option<f64>,
-}
-
-impl GuidanceRun {
-    /// The last test loss.
-    pub fn final_loss(&self) -> f64 {
-        self.test_loss.last().copied().unwrap_or(f64::NAN)
-    }
-}
+/// What a guidance run measured (test loss with the control cost).
+pub type GuidanceRun = crate::bptt::BpttRun;
 
 /// Test loss of `net` on the start states `test` (a forward rollout, no gradient).
 pub fn evaluate(stepper: &GuidanceStepper, net: &DenseController, test: &Tensor, rc: f64) -> Result<f64> {

@@ -459,25 +459,8 @@ impl QuantumControlConfig {
     }
 }
 
-/// What a training run measured.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct QuantumControlRun {
-    /// Steps done at each evaluation.
-    pub steps: Vec<usize>,
-    /// Test loss `sum_k (1 - fidelity_k)` at each evaluation.
-    pub test_loss: Vec<f64>,
-    /// Training seconds (evaluation excluded).
-    pub seconds: f64,
-    /// Mode C: mean fraction of gradient components whose signs agreed.
-    pub agreement: Option<f64>,
-}
-
-impl QuantumControlRun {
-    /// The last test loss.
-    pub fn final_loss(&self) -> f64 {
-        self.test_loss.last().copied().unwrap_or(f64::NAN)
-    }
-}
+/// What a quantum-control run measured (test loss `sum_k (1 - fidelity_k)`).
+pub type QuantumControlRun = crate::bptt::BpttRun;
 
 /// Test loss of `net` on the start states `test` (a forward rollout, no gradient).
 pub fn evaluate(phys: &QuantumControl, net: &ConvController, test: &Tensor) -> Result<f64> {
