@@ -12,7 +12,7 @@
 //! | [`wcsph`] | [`Wcsph`]: 2D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, extrapolated wall particles), [`DamBreak`] (Martin & Moyce; [`DamBreak::build_as`] picks `f32` or `f64`) |
 //! | [`iisph`] | [`Iisph`]: 2D implicit incompressible SPH (relaxed-Jacobi pressure solve to a stated density tolerance, wall particles), [`DamBreak::build_iisph`] / [`DamBreak::build_iisph_as`] |
 //! | [`render`] | particles splatted into pixel fields for PNG/GIF ([`render::scatter`]) |
-//! | [`scene`] | [`scene::Scene`]: TOML scenes (shock tube, dam break WCSPH/IISPH, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
+//! | [`scene`] | [`scene::Scene`]: TOML scenes (`precision = "f32"` or `"f64"`) (shock tube, dam break WCSPH/IISPH, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
 //! | [`mod@tasks`] | [`tasks()`]: tour (Sod, dam break WCSPH and IISPH), bench (neighbour search, Sod time vs error, WCSPH step), stress (dam break to T = 10, strong shocks) |
 //! | [`error`] | [`Error`], [`Result`] |
 //!

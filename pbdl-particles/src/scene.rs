@@ -3,7 +3,8 @@
 //! write trajectories (`.npz`) and renders (PNG, GIF).
 //!
 //! A scene has a `name`, `about`, `frames` (output frames after the initial one), `frame_dt`
-//! (time between frames), a `seed` (noise scenes) and exactly one of the sections
+//! (time between frames), a `seed` (noise scenes), a `precision` (`"f64"`, the default, or
+//! `"f32"`: the solver's particle arrays, see [`Precision`]) and exactly one of the sections
 //! `[shock_tube]`, `[dam_break]`, `[periodic_1d]`, `[periodic_2d]`. Unknown keys are errors
 //! ([`Error::SceneField`] naming the key), and so are bad values (the field's full path, e.g.
 //! `dam_break.geometry.dx`).
@@ -21,6 +22,9 @@
 //! let scene = Scene::builtin("periodic_2d_box")?;
 //! let sim = scene.build(0, None)?;
 //! assert!(!sim.operators().contains(&"wall_pressure_extrapolation"));
+//! // The same scene in single precision (what `precision = "f32"` or `--precision f32` asks for).
+//! let sim32 = scene.build_as::<f32>(0, None)?;
+//! assert_eq!(sim32.operators(), sim.operators());
 //! # Ok::<(), pbdl_particles::Error>(())
 //! ```
 
@@ -30,7 +34,8 @@ use crate::neighbors::Domain;
 use crate::riemann::GasState;
 use crate::sph1d::{ShockTube, Sph1d, Sph1dParams};
 use crate::wcsph::{DamBreak, Wcsph, WcsphParams, WcsphPhysics};
-use candle_core::{Device, Tensor};
+use candle_core::{DType, Device, Tensor};
+use pbdl_core::Real;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -65,6 +70,9 @@ pub struct Scene {
     /// Base seed of the noise scenes (run `k` of `--seeds` uses `seed + k`).
     #[serde(default)]
     pub seed: u64,
+    /// Precision of the solver's particle arrays, `"f64"` (default) or `"f32"`.
+    #[serde(default)]
+    pub precision: Precision,
     /// A 1D shock tube.
     #[serde(default)]
     pub shock_tube: Option<ShockTubeScene>,
@@ -77,6 +85,48 @@ pub struct Scene {
     /// A periodic 2D weakly compressible box with noisy velocity.
     #[serde(default)]
     pub periodic_2d: Option<Periodic2dScene>,
+}
+
+/// The precision of a run (scene key `precision`, `cargo xtask sim particles --precision`).
+///
+/// Only the particle arrays change: the scene's geometry, noise and initial state are computed
+/// in `f64` and rounded once, and the solvers keep time and constants in `f64` (see
+/// [`DamBreak::build_as`]). Trajectories keep the run's dtype (see [`write_trajectory`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// Double precision (default).
+    #[default]
+    F64,
+    /// Single precision: half the memory, round-off 6e-8 instead of 1e-16.
+    F32,
+}
+
+impl Precision {
+    /// `"f64"` or `"f32"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F64 => "f64",
+            Precision::F32 => "f32",
+        }
+    }
+
+    /// Parses `"f64"` or `"f32"` (e.g. a command-line flag).
+    ///
+    /// Errors: [`Error::Invalid`] naming `precision` for anything else.
+    pub fn parse(text: &str) -> Result<Self> {
+        match text {
+            "f64" => Ok(Precision::F64),
+            "f32" => Ok(Precision::F32),
+            other => Err(Error::invalid("precision", format!("`{other}`; use \"f64\" or \"f32\""))),
+        }
+    }
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// `[shock_tube]`: two gas states meeting at `x0`.
@@ -252,11 +302,12 @@ pub struct InitState {
 
 impl InitState {
     /// Reads `positions` (`[n, d]` or a trajectory `[T, n, d]`: its last frame), and optional
-    /// `velocities`, `mass`, `density` (`[n]` / `[T, n]`) from `.npz` arrays.
+    /// `velocities`, `mass`, `density` (`[n]` / `[T, n]`) from `.npz` arrays, widened to `f64`
+    /// (exact for `f32` and `f64` arrays).
     pub fn from_arrays(arrays: &[(String, Tensor)]) -> Result<Self> {
         let get = |name: &str| arrays.iter().find(|(n, _)| n == name).map(|(_, t)| t);
         let last = |t: &Tensor, rank: usize| -> Result<Tensor> {
-            let t = t.to_dtype(candle_core::DType::F64)?;
+            let t = t.to_dtype(DType::F64)?;
             Ok(if t.rank() == rank + 1 { t.get(t.dim(0)? - 1)? } else { t })
         };
         let pos = get("positions").ok_or_else(|| Error::SceneField {
@@ -366,18 +417,38 @@ pub struct Frame {
     pub mass: Vec<f64>,
 }
 
-/// A built stepper of one of the solvers.
+/// A built stepper of one of the solvers, in precision `T` (`f32` or `f64`).
 #[derive(Clone, Debug)]
-pub enum Stepper {
+pub enum Stepper<T: Real = f64> {
     /// 1D compressible SPH.
-    Sph1d(Box<Sph1d>),
+    Sph1d(Box<Sph1d<T>>),
     /// 2D weakly compressible SPH.
-    Wcsph(Box<Wcsph>),
+    Wcsph(Box<Wcsph<T>>),
     /// 2D incompressible SPH.
-    Iisph(Box<Iisph>),
+    Iisph(Box<Iisph<T>>),
 }
 
-impl Stepper {
+/// `T` values widened to `f64` (exact).
+fn wide<T: Real>(v: &[T]) -> Vec<f64> {
+    v.iter().map(|a| a.wide()).collect()
+}
+
+/// `[T; 2]` points flattened and widened to `f64`.
+fn wide2<T: Real>(v: &[[T; 2]]) -> Vec<f64> {
+    v.iter().flat_map(|p| [p[0].wide(), p[1].wide()]).collect()
+}
+
+/// `f64` values rounded to `T`.
+fn narrow<T: Real>(v: &[f64]) -> Vec<T> {
+    v.iter().map(|&a| T::c(a)).collect()
+}
+
+/// `f64` points rounded to `T`.
+fn narrow2<T: Real>(v: &[[f64; 2]]) -> Vec<[T; 2]> {
+    v.iter().map(|p| [T::c(p[0]), T::c(p[1])]).collect()
+}
+
+impl<T: Real> Stepper<T> {
     /// Spatial dimension.
     pub fn dim(&self) -> usize {
         match self {
@@ -423,37 +494,37 @@ impl Stepper {
     }
 
     /// The moving particles now (fluid / mobile only; ghosts and walls are in
-    /// [`Stepper::fixed_positions`]). IISPH densities are summation densities at the current
-    /// positions.
+    /// [`Stepper::fixed_positions`]), widened to `f64`. IISPH densities are summation densities
+    /// at the current positions.
     pub fn frame(&mut self) -> Result<Frame> {
         Ok(match self {
             Stepper::Sph1d(s) => {
                 let n = s.n_mobile();
                 Frame {
                     time: s.time(),
-                    positions: s.x[..n].to_vec(),
-                    velocities: s.v[..n].to_vec(),
-                    density: s.rho[..n].to_vec(),
-                    mass: s.m[..n].to_vec(),
+                    positions: wide(&s.x[..n]),
+                    velocities: wide(&s.v[..n]),
+                    density: wide(&s.rho[..n]),
+                    mass: wide(&s.m[..n]),
                 }
             }
             Stepper::Wcsph(s) => {
                 let n = s.n_fluid();
                 Frame {
                     time: s.time(),
-                    positions: s.x[..n].iter().flatten().copied().collect(),
-                    velocities: s.v.iter().flatten().copied().collect(),
-                    density: s.rho[..n].to_vec(),
+                    positions: wide2(&s.x[..n]),
+                    velocities: wide2(&s.v),
+                    density: wide(&s.rho[..n]),
                     mass: vec![s.physics().mass; n],
                 }
             }
             Stepper::Iisph(s) => {
                 let n = s.n_fluid();
-                let density = s.summation_density()?;
+                let density = wide(&s.summation_density()?);
                 Frame {
                     time: s.time(),
-                    positions: s.x[..n].iter().flatten().copied().collect(),
-                    velocities: s.v.iter().flatten().copied().collect(),
+                    positions: wide2(&s.x[..n]),
+                    velocities: wide2(&s.v),
                     density,
                     mass: vec![s.mass(); n],
                 }
@@ -461,12 +532,12 @@ impl Stepper {
         })
     }
 
-    /// Fixed particles (shock-tube ghosts, walls), row-major `[n_fixed * dim]`.
+    /// Fixed particles (shock-tube ghosts, walls), row-major `[n_fixed * dim]`, widened to `f64`.
     pub fn fixed_positions(&self) -> Vec<f64> {
         match self {
-            Stepper::Sph1d(s) => s.x[s.n_mobile()..].to_vec(),
-            Stepper::Wcsph(s) => s.x[s.n_fluid()..].iter().flatten().copied().collect(),
-            Stepper::Iisph(s) => s.x[s.n_fluid()..].iter().flatten().copied().collect(),
+            Stepper::Sph1d(s) => wide(&s.x[s.n_mobile()..]),
+            Stepper::Wcsph(s) => wide2(&s.x[s.n_fluid()..]),
+            Stepper::Iisph(s) => wide2(&s.x[s.n_fluid()..]),
         }
     }
 
@@ -475,7 +546,7 @@ impl Stepper {
         match self {
             Stepper::Sph1d(s) => {
                 let d = s.domain();
-                [[d.lo[0], 0.0], [d.hi[0], 0.0]]
+                [[d.lo[0].wide(), 0.0], [d.hi[0].wide(), 0.0]]
             }
             Stepper::Wcsph(s) => {
                 if s.x.len() > s.n_fluid() {
@@ -484,7 +555,7 @@ impl Stepper {
                     [[lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m]]
                 } else {
                     let d = s.domain();
-                    [d.lo, d.hi]
+                    [d.lo.map(Real::wide), d.hi.map(Real::wide)]
                 }
             }
             Stepper::Iisph(s) => {
@@ -500,7 +571,7 @@ impl Stepper {
         match self {
             Stepper::Sph1d(s) => {
                 let d = s.domain();
-                (d.hi[0] - d.lo[0]) / s.x.len().max(1) as f64
+                (d.hi[0].wide() - d.lo[0].wide()) / s.x.len().max(1) as f64
             }
             Stepper::Wcsph(s) => s.physics().dx,
             Stepper::Iisph(s) => s.dx(),
@@ -521,16 +592,29 @@ fn scene_err(scene: &str, field: &str, reason: impl Into<String>) -> Error {
     Error::SceneField { scene: scene.into(), field: field.into(), reason: reason.into() }
 }
 
+/// The key of the `key = value` whose value starts at byte `at` of `text` (where toml points
+/// a bad value), if the text before it on that line ends in `key =`.
+fn key_of_value_at(text: &str, at: usize) -> Option<String> {
+    let before = text.get(..at)?;
+    let line = &before[before.rfind('\n').map_or(0, |i| i + 1)..];
+    let lhs = line.trim_end().strip_suffix('=')?.trim_end();
+    let start = lhs.rfind(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == '-')).map_or(0, |i| i + 1);
+    let key = &lhs[start..];
+    (!key.is_empty()).then(|| key.to_string())
+}
+
 impl Scene {
-    /// Parses a scene from TOML text; `origin` names it in errors. An unknown key gives
-    /// [`Error::SceneField`] with that key.
+    /// Parses a scene from TOML text; `origin` names it in errors. An unknown key, or a bad
+    /// value (e.g. `precision = "f16"`), gives [`Error::SceneField`] with that key.
     pub fn from_toml_str(text: &str, origin: &str) -> Result<Self> {
         let scene: Scene = toml::from_str(text).map_err(|e| {
             let msg = e.message().to_string();
-            let field =
-                msg.strip_prefix("unknown field `").and_then(|r| r.split('`').next()).map(str::to_string).or_else(
-                    || msg.strip_prefix("missing field `").and_then(|r| r.split('`').next()).map(str::to_string),
-                );
+            let field = msg
+                .strip_prefix("unknown field `")
+                .and_then(|r| r.split('`').next())
+                .map(str::to_string)
+                .or_else(|| msg.strip_prefix("missing field `").and_then(|r| r.split('`').next()).map(str::to_string))
+                .or_else(|| e.span().and_then(|span| key_of_value_at(text, span.start)));
             match field {
                 Some(field) => Error::SceneField { scene: origin.into(), field, reason: e.to_string() },
                 None => Error::Scene(format!("{origin}: {e}")),
@@ -603,12 +687,28 @@ impl Scene {
         self
     }
 
-    /// Builds the stepper for run `seed` (added to the scene's seed), optionally from
-    /// initial particles (`--init`).
+    /// The same scene in `precision` (e.g. from `--precision`).
+    pub fn with_precision(mut self, precision: Precision) -> Self {
+        self.precision = precision;
+        self
+    }
+
+    /// Builds the `f64` stepper for run `seed` (added to the scene's seed), optionally from
+    /// initial particles (`--init`). This ignores [`Scene::precision`]: to honour it, match on
+    /// it and call [`Scene::build_as`] with `f32` or `f64`.
     ///
     /// Errors: [`Error::SceneField`] naming the field for bad values,
     /// [`Error::OutsideDomain`] for initial particles outside the box.
     pub fn build(&self, seed: u64, init: Option<&InitState>) -> Result<Stepper> {
+        self.build_as::<f64>(seed, init)
+    }
+
+    /// Builds the stepper in precision `T` (`f32` or `f64`); as [`Scene::build`] otherwise.
+    /// Initial states (noise, layouts, `--init` arrays) are computed in `f64` and rounded once,
+    /// so `f32` values read back from an `f32` trajectory are restored exactly.
+    ///
+    /// Errors: as [`Scene::build`].
+    pub fn build_as<T: Real>(&self, seed: u64, init: Option<&InitState>) -> Result<Stepper<T>> {
         self.validate()?;
         let name = self.name.as_str();
         let seed = self.seed.wrapping_add(seed);
@@ -616,7 +716,7 @@ impl Scene {
             if init.is_some() {
                 return Err(scene_err(name, "init", "--init is not supported for shock tubes (use periodic_1d)"));
             }
-            let sim = st.tube().build(st.n, st.sph).map_err(|e| match e {
+            let sim = st.tube().build_as::<T>(st.n, st.sph).map_err(|e| match e {
                 Error::Invalid { field, reason } if ["eta", "alpha", "cfl", "kernel"].contains(&field) => {
                     scene_err(name, &format!("shock_tube.sph.{field}"), reason)
                 }
@@ -637,28 +737,32 @@ impl Scene {
     }
 }
 
-fn build_dam_break(name: &str, db: &DamBreakScene, init: Option<&InitState>) -> Result<Stepper> {
+fn build_dam_break<T: Real>(name: &str, db: &DamBreakScene, init: Option<&InitState>) -> Result<Stepper<T>> {
     let sec = "dam_break.geometry";
-    let mut stepper = match db.solver {
-        DamSolver::Wcsph => Stepper::Wcsph(Box::new(db.geometry.build(db.wcsph).map_err(|e| match e {
-            Error::Invalid { field, reason } if ["h_over_dx", "alpha", "delta", "cfl"].contains(&field) => {
-                scene_err(name, &format!("dam_break.wcsph.{field}"), reason)
-            }
-            e => field_err(name, sec, e),
-        })?)),
-        DamSolver::Iisph => Stepper::Iisph(Box::new(db.geometry.build_iisph(db.iisph).map_err(|e| match e {
-            Error::Invalid { field, reason }
-                if ["h_over_dx", "cfl", "dt_max", "tolerance", "max_iterations", "omega", "nu"].contains(&field) =>
-            {
-                Error::SceneField { scene: name.into(), field: format!("dam_break.iisph.{field}"), reason }
-            }
-            e => field_err(name, sec, e),
-        })?)),
-    };
+    let mut stepper =
+        match db.solver {
+            DamSolver::Wcsph => Stepper::Wcsph(Box::new(db.geometry.build_as::<T>(db.wcsph).map_err(|e| match e {
+                Error::Invalid { field, reason } if ["h_over_dx", "alpha", "delta", "cfl"].contains(&field) => {
+                    scene_err(name, &format!("dam_break.wcsph.{field}"), reason)
+                }
+                e => field_err(name, sec, e),
+            })?)),
+            DamSolver::Iisph => Stepper::Iisph(Box::new(db.geometry.build_iisph_as::<T>(db.iisph).map_err(|e| {
+                match e {
+                    Error::Invalid { field, reason }
+                        if ["h_over_dx", "cfl", "dt_max", "tolerance", "max_iterations", "omega", "nu"]
+                            .contains(&field) =>
+                    {
+                        Error::SceneField { scene: name.into(), field: format!("dam_break.iisph.{field}"), reason }
+                    }
+                    e => field_err(name, sec, e),
+                }
+            })?)),
+        };
     if let Some(init) = init {
         init.check(2, name)?;
-        let x = init.points2();
-        let v = init.velocities2();
+        let x = narrow2::<T>(&init.points2());
+        let v = narrow2::<T>(&init.velocities2());
         stepper = match stepper {
             Stepper::Wcsph(s) => {
                 let walls = s.x[s.n_fluid()..].to_vec();
@@ -666,11 +770,11 @@ fn build_dam_break(name: &str, db: &DamBreakScene, init: Option<&InitState>) -> 
                 let mut phys = *s.physics();
                 phys.mass = init.uniform_mass(phys.mass, name)?;
                 let rho = match &init.density {
-                    Some(d) => d.clone(),
-                    None => vec![phys.rho0; nf],
+                    Some(d) => narrow(d),
+                    None => vec![T::c(phys.rho0); nf],
                 };
-                let all: Vec<[f64; 2]> = x.into_iter().chain(walls).collect();
-                let rho: Vec<f64> = rho.into_iter().chain(std::iter::repeat_n(phys.rho0, all.len() - nf)).collect();
+                let all: Vec<[T; 2]> = x.into_iter().chain(walls).collect();
+                let rho: Vec<T> = rho.into_iter().chain(std::iter::repeat_n(T::c(phys.rho0), all.len() - nf)).collect();
                 Stepper::Wcsph(Box::new(Wcsph::new(
                     *s.params(),
                     phys,
@@ -685,7 +789,7 @@ fn build_dam_break(name: &str, db: &DamBreakScene, init: Option<&InitState>) -> 
             Stepper::Iisph(s) => {
                 let walls = s.x[s.n_fluid()..].to_vec();
                 let nf = x.len();
-                let all: Vec<[f64; 2]> = x.into_iter().chain(walls).collect();
+                let all: Vec<[T; 2]> = x.into_iter().chain(walls).collect();
                 Stepper::Iisph(Box::new(Iisph::new(
                     *s.params(),
                     s.rho0(),
@@ -716,12 +820,17 @@ fn build_dam_break(name: &str, db: &DamBreakScene, init: Option<&InitState>) -> 
 }
 
 /// The search box around a tank (walls included).
-fn container_domain(c: [[f64; 2]; 2]) -> Domain<f64, 2> {
+fn container_domain<T: Real>(c: [[f64; 2]; 2]) -> Domain<T, 2> {
     let m = 0.2 * (c[1][0] - c[0][0]).max(c[1][1] - c[0][1]);
-    Domain::bounded([c[0][0] - m, c[0][1] - m], [c[1][0] + m, c[1][1] + m])
+    Domain::bounded([T::c(c[0][0] - m), T::c(c[0][1] - m)], [T::c(c[1][0] + m), T::c(c[1][1] + m)])
 }
 
-fn build_periodic_1d(name: &str, p: &Periodic1dScene, seed: u64, init: Option<&InitState>) -> Result<Stepper> {
+fn build_periodic_1d<T: Real>(
+    name: &str,
+    p: &Periodic1dScene,
+    seed: u64,
+    init: Option<&InitState>,
+) -> Result<Stepper<T>> {
     let sec = "periodic_1d";
     let f = |field: &str, reason: String| scene_err(name, &format!("{sec}.{field}"), reason);
     if !(p.x_lo.is_finite() && p.x_hi.is_finite() && p.x_hi > p.x_lo) {
@@ -748,7 +857,7 @@ fn build_periodic_1d(name: &str, p: &Periodic1dScene, seed: u64, init: Option<&I
     }
     let u0 = p.c0 * p.c0 / (gamma * (gamma - 1.0));
     let len = p.x_hi - p.x_lo;
-    let domain = Domain::periodic([p.x_lo], [p.x_hi]);
+    let domain = Domain::periodic([T::c(p.x_lo)], [T::c(p.x_hi)]);
     let (x, v, m) = match init {
         Some(init) => {
             init.check(1, name)?;
@@ -788,14 +897,21 @@ fn build_periodic_1d(name: &str, p: &Periodic1dScene, seed: u64, init: Option<&I
         }
     };
     let n = x.len();
-    let sim = Sph1d::new(p.sph, x, v, vec![u0; n], m, None, n, domain).map_err(|e| match e {
-        Error::Invalid { field: "m", reason } => scene_err(name, "init.mass", reason),
-        e => field_err(name, "periodic_1d.sph", e),
-    })?;
+    let sim = Sph1d::new(p.sph, narrow(&x), narrow(&v), vec![T::c(u0); n], narrow(&m), None, n, domain).map_err(
+        |e| match e {
+            Error::Invalid { field: "m", reason } => scene_err(name, "init.mass", reason),
+            e => field_err(name, "periodic_1d.sph", e),
+        },
+    )?;
     Ok(Stepper::Sph1d(Box::new(sim)))
 }
 
-fn build_periodic_2d(name: &str, p: &Periodic2dScene, seed: u64, init: Option<&InitState>) -> Result<Stepper> {
+fn build_periodic_2d<T: Real>(
+    name: &str,
+    p: &Periodic2dScene,
+    seed: u64,
+    init: Option<&InitState>,
+) -> Result<Stepper<T>> {
     let sec = "periodic_2d";
     let f = |field: &str, reason: String| scene_err(name, &format!("{sec}.{field}"), reason);
     if !(p.length > 0.0 && p.length.is_finite()) {
@@ -818,7 +934,7 @@ fn build_periodic_2d(name: &str, p: &Periodic2dScene, seed: u64, init: Option<&I
     }
     let l = p.length;
     let dx = l / p.n as f64;
-    let domain = Domain::periodic([0.0, 0.0], [l, l]);
+    let domain = Domain::periodic([T::zero(); 2], [T::c(l); 2]);
     let mut phys = WcsphPhysics { rho0: p.rho0, c0: p.c0, gravity: [0.0, 0.0], mass: p.rho0 * dx * dx, dx };
     let (x, v, rho) = match init {
         Some(init) => {
@@ -862,7 +978,7 @@ fn build_periodic_2d(name: &str, p: &Periodic2dScene, seed: u64, init: Option<&I
         }
     };
     let nf = x.len();
-    let sim = Wcsph::new(p.wcsph, phys, x, v, rho, nf, domain, [[0.0, 0.0], [l, l]])
+    let sim = Wcsph::new(p.wcsph, phys, narrow2(&x), narrow2(&v), narrow(&rho), nf, domain, [[0.0, 0.0], [l, l]])
         .map_err(|e| field_err(name, "periodic_2d.wcsph", e))?;
     Ok(Stepper::Wcsph(Box::new(sim)))
 }
@@ -916,7 +1032,11 @@ fn perlin2(seed: u64, octave: u64, u: [f64; 2], cells: usize) -> f64 {
 
 /// Runs `stepper` for the scene's frames and returns the initial frame plus one per
 /// `frame_dt`; `on_frame(k)` is called after frame `k`.
-pub fn run_frames(scene: &Scene, stepper: &mut Stepper, mut on_frame: impl FnMut(usize)) -> Result<Vec<Frame>> {
+pub fn run_frames<T: Real>(
+    scene: &Scene,
+    stepper: &mut Stepper<T>,
+    mut on_frame: impl FnMut(usize),
+) -> Result<Vec<Frame>> {
     let mut frames = vec![stepper.frame()?];
     let t0 = stepper.time();
     for k in 1..=scene.frames {
@@ -929,10 +1049,21 @@ pub fn run_frames(scene: &Scene, stepper: &mut Stepper, mut on_frame: impl FnMut
 
 /// Writes `<dir>/<stem>.npz` with `positions` `[T, N, D]`, `velocities` `[T, N, D]`,
 /// `density` `[T, N]`, `mass` `[T, N]`, `time` `[T]` and `fixed_positions` `[F, D]` (walls,
-/// ghosts; absent when there are none), all f64; plus `<stem>.png` (last frame) and
-/// `<stem>.gif` (all frames): particles coloured by speed (2D) or density against x coloured by
-/// velocity (1D). Returns the files written.
-pub fn write_trajectory(stepper: &Stepper, frames: &[Frame], dir: &Path, stem: &str) -> Result<Vec<PathBuf>> {
+/// ghosts; absent when there are none); plus `<stem>.png` (last frame) and `<stem>.gif` (all
+/// frames): particles coloured by speed (2D) or density against x coloured by velocity (1D).
+/// Returns the files written.
+///
+/// Dtypes: the particle arrays have the stepper's precision (`f64`, or `f32` for an `f32` run:
+/// the solver's own values, so [`InitState::from_arrays`] and [`Scene::build_as`] in the same
+/// precision restore positions, velocities and densities exactly; the 2D solvers' mass is an
+/// `f64` constant, written rounded to `f32`, the value the `f32` solver computes with).
+/// `time` is always `f64` (the solvers keep time in `f64`).
+pub fn write_trajectory<T: Real>(
+    stepper: &Stepper<T>,
+    frames: &[Frame],
+    dir: &Path,
+    stem: &str,
+) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir).map_err(|e| Error::Scene(format!("cannot create {}: {e}", dir.display())))?;
     let dim = stepper.dim();
     let t = frames.len();
@@ -940,7 +1071,7 @@ pub fn write_trajectory(stepper: &Stepper, frames: &[Frame], dir: &Path, stem: &
     let dev = Device::Cpu;
     let stack = |get: &dyn Fn(&Frame) -> &[f64], shape: Vec<usize>| -> Result<Tensor> {
         let data: Vec<f64> = frames.iter().flat_map(|f| get(f).iter().copied()).collect();
-        Ok(Tensor::from_vec(data, shape, &dev)?)
+        Ok(Tensor::from_vec(data, shape, &dev)?.to_dtype(T::DTYPE)?)
     };
     let mut arrays = vec![
         ("positions".to_string(), stack(&|f| &f.positions, vec![t, n, dim])?),
@@ -952,7 +1083,8 @@ pub fn write_trajectory(stepper: &Stepper, frames: &[Frame], dir: &Path, stem: &
     let fixed = stepper.fixed_positions();
     if !fixed.is_empty() {
         let nf = fixed.len() / dim;
-        arrays.push(("fixed_positions".to_string(), Tensor::from_vec(fixed.clone(), vec![nf, dim], &dev)?));
+        let fixed_t = Tensor::from_vec(fixed.clone(), vec![nf, dim], &dev)?.to_dtype(T::DTYPE)?;
+        arrays.push(("fixed_positions".to_string(), fixed_t));
     }
     let npz = dir.join(format!("{stem}.npz"));
     pbdl_core::io::write_npz(&npz, &arrays)?;
@@ -983,7 +1115,7 @@ pub fn write_trajectory(stepper: &Stepper, frames: &[Frame], dir: &Path, stem: &
 
 /// Scatter rasters of the frames: 2D particles coloured by speed (walls at the lowest value);
 /// 1D: density against x, coloured by velocity.
-fn render_frames(stepper: &Stepper, frames: &[Frame], fixed: &[f64]) -> Vec<crate::render::Raster> {
+fn render_frames<T: Real>(stepper: &Stepper<T>, frames: &[Frame], fixed: &[f64]) -> Vec<crate::render::Raster> {
     let [lo, hi] = stepper.view_box();
     if stepper.dim() == 1 {
         let (rmin, rmax) = frames

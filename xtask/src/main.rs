@@ -88,6 +88,9 @@ enum Command {
         /// Particles: runs with seeds 0..N (noise scenes differ per seed), one .npz each.
         #[arg(long)]
         seeds: Option<usize>,
+        /// Particles: f32 or f64 (replaces the scene's `precision`, default f64).
+        #[arg(long)]
+        precision: Option<String>,
         /// Start from the fields in this .npz (see below for names and layout).
         #[arg(long)]
         init: Option<PathBuf>,
@@ -181,17 +184,21 @@ Poisson scene reads `source`). smoke_plume reads `density` ([Y, X], [1, Y, X] or
 A trajectory written by `sim` is a valid --init file.
 
 Particles (`sim particles`): <out>/<scene>_seed<k>.npz with `positions` [T, N, D],
-`velocities` [T, N, D], `density` [T, N], `mass` [T, N], `time` [T] (f64) and, where there are
-walls or ghosts, `fixed_positions` [F, D]; <scene>_seed<k>.png (last frame) and .gif beside it.
---init FILE.npz reads `positions` [N, D] or [T, N, D] (last frame), optional `velocities`,
-`mass`, `density` (the fluid; walls come from the scene). A trajectory is a valid --init file.
+`velocities` [T, N, D], `density` [T, N], `mass` [T, N] and, where there are walls or ghosts,
+`fixed_positions` [F, D], in the run's precision (f64, or f32 with `precision = \"f32\"` in the
+scene or --precision f32), and `time` [T] (always f64); <scene>_seed<k>.png (last frame) and
+.gif beside it. --init FILE.npz reads `positions` [N, D] or [T, N, D] (last frame), optional
+`velocities`, `mass`, `density` (the fluid; walls come from the scene; f32 or f64). A
+trajectory is a valid --init file; a restart in the trajectory's precision starts from exactly
+its last frame.
 
 Examples:
   cargo xtask sim grid taylor_green --res 128
   cargo xtask sim grid lid_driven_cavity --res 64 --out /tmp/cavity
   cargo xtask sim grid my_scene.toml --init start.npz --steps 500
   cargo xtask sim particles periodic_2d_box --seeds 4 --out /tmp/box
-  cargo xtask sim particles dam_break_iisph --steps 50";
+  cargo xtask sim particles dam_break_iisph --steps 50
+  cargo xtask sim particles shock_tube --precision f32";
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
@@ -199,8 +206,8 @@ fn main() -> anyhow::Result<()> {
         Command::Tour { quick, out } => tour::run(quick, out.unwrap_or_else(|| report::target_dir().join("tour"))),
         Command::Bench { krate, quick } => bench::run(krate.as_deref(), quick),
         Command::Stress { krate, quick } => stress::run(krate.as_deref(), quick),
-        Command::Sim { krate, scene, res, steps, seeds, init, out } => {
-            sim::run(sim::SimArgs { krate, scene, res, steps, init, out, seeds })
+        Command::Sim { krate, scene, res, steps, seeds, precision, init, out } => {
+            sim::run(sim::SimArgs { krate, scene, res, steps, init, out, seeds, precision })
         }
         Command::Metric { metric, a, b, weights, native, joint_batch, resize64 } => {
             metric::run(metric::MetricArgs { metric, a, b, weights, native, joint_batch, resize64 })

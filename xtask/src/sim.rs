@@ -3,7 +3,8 @@
 
 use crate::report;
 use pbdl_grid::scene::{write_trajectory, Scene};
-use std::path::PathBuf;
+use pbdl_particles::scene::{InitState, Precision};
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// What `cargo xtask sim` was asked to do.
@@ -22,6 +23,8 @@ pub struct SimArgs {
     pub out: Option<PathBuf>,
     /// Number of seeds (runs `0..seeds`, particles only).
     pub seeds: Option<usize>,
+    /// `f32` or `f64`, replacing the scene's `precision` (particles only).
+    pub precision: Option<String>,
 }
 
 /// Runs the scene and writes `<out>/<scene>.npz` plus PNG/GIF renders.
@@ -31,6 +34,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(args.krate == "grid", "unknown simulator `{}`; available: grid, particles", args.krate);
     anyhow::ensure!(args.seeds.is_none(), "--seeds is for `sim particles`");
+    anyhow::ensure!(args.precision.is_none(), "--precision is for `sim particles`; grid scenes run in f64");
     let mut scene = Scene::load(&args.scene)?;
     if let Some(n) = args.res {
         scene = scene.with_resolution(n);
@@ -76,13 +80,17 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `sim particles`: one run per seed, `<out>/<scene>_seed<k>.npz` + PNG + GIF each.
+/// `sim particles`: one run per seed, `<out>/<scene>_seed<k>.npz` + PNG + GIF each, in the
+/// scene's precision (or `--precision`).
 fn run_particles(args: SimArgs) -> anyhow::Result<()> {
-    use pbdl_particles::scene::{run_frames, write_trajectory, InitState, Scene};
+    use pbdl_particles::scene::Scene;
     anyhow::ensure!(args.res.is_none(), "--res is for `sim grid`; particle scenes set their spacing in the TOML");
     let mut scene = Scene::load(&args.scene)?;
     if let Some(s) = args.steps {
         scene = scene.with_frames(s);
+    }
+    if let Some(p) = &args.precision {
+        scene = scene.with_precision(Precision::parse(p)?);
     }
     let init = match &args.init {
         Some(path) => Some(InitState::from_arrays(&pbdl_core::io::read_npz(path)?)?),
@@ -91,34 +99,51 @@ fn run_particles(args: SimArgs) -> anyhow::Result<()> {
     let seeds = args.seeds.unwrap_or(1).max(1);
     let out = args.out.unwrap_or_else(|| report::target_dir().join("sim").join(&scene.name));
     for k in 0..seeds {
-        let mut sim = scene.build(k as u64, init.as_ref())?;
-        println!(
-            "sim: {} ({}), seed {}, {} frames of {:.4e} to t = {:.4}",
-            scene.name,
-            scene.about,
-            scene.seed + k as u64,
-            scene.frames,
-            scene.frame_dt,
-            scene.t_end()
-        );
-        println!("sim: operators {}", sim.operators().join(", "));
-        let progress = pbdl_core::train::Progress::new(scene.frames as u64);
-        let started = Instant::now();
-        let frames = run_frames(&scene, &mut sim, |f| progress.bar().set_position(f as u64))?;
-        progress.finish();
-        let wall = started.elapsed().as_secs_f64();
-        let files = write_trajectory(&sim, &frames, &out, &format!("{}_seed{k}", scene.name))?;
-        println!(
-            "sim: {} particles, {} steps in {:.2} s ({:.3} ms/step), {} frames",
-            frames[0].mass.len(),
-            sim.steps(),
-            wall,
-            1e3 * wall / sim.steps().max(1) as f64,
-            frames.len()
-        );
-        for f in files {
-            println!("wrote {}", f.display());
+        // One dispatch on the precision; the run itself is generic.
+        match scene.precision {
+            Precision::F64 => run_particle_seed::<f64>(&scene, k, init.as_ref(), &out)?,
+            Precision::F32 => run_particle_seed::<f32>(&scene, k, init.as_ref(), &out)?,
         }
+    }
+    Ok(())
+}
+
+/// One `sim particles` run (seed `k`) in precision `T`.
+fn run_particle_seed<T: pbdl_core::Real>(
+    scene: &pbdl_particles::scene::Scene,
+    k: usize,
+    init: Option<&InitState>,
+    out: &Path,
+) -> anyhow::Result<()> {
+    use pbdl_particles::scene::{run_frames, write_trajectory};
+    let mut sim = scene.build_as::<T>(k as u64, init)?;
+    println!(
+        "sim: {} ({}), seed {}, {} frames of {:.4e} to t = {:.4}, {}",
+        scene.name,
+        scene.about,
+        scene.seed + k as u64,
+        scene.frames,
+        scene.frame_dt,
+        scene.t_end(),
+        scene.precision
+    );
+    println!("sim: operators {}", sim.operators().join(", "));
+    let progress = pbdl_core::train::Progress::new(scene.frames as u64);
+    let started = Instant::now();
+    let frames = run_frames(scene, &mut sim, |f| progress.bar().set_position(f as u64))?;
+    progress.finish();
+    let wall = started.elapsed().as_secs_f64();
+    let files = write_trajectory(&sim, &frames, out, &format!("{}_seed{k}", scene.name))?;
+    println!(
+        "sim: {} particles, {} steps in {:.2} s ({:.3} ms/step), {} frames",
+        frames[0].mass.len(),
+        sim.steps(),
+        wall,
+        1e3 * wall / sim.steps().max(1) as f64,
+        frames.len()
+    );
+    for f in files {
+        println!("wrote {}", f.display());
     }
     Ok(())
 }
