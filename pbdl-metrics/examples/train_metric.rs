@@ -4,11 +4,16 @@
 //!
 //! ```text
 //! cargo run -p pbdl-metrics --example train_metric -- [--train 60] [--test 30] [--epochs 40]
-//!     [--width 0.5] [--res 64] [--lr 1e-4] [--gt linear|fit2] [--seed 0] [--no-lsim]
+//!     [--width 0.5] [--res 64] [--lr 1e-3] [--gt linear|fit2] [--seed 0] [--no-lsim]
+//!     [--val 30] [--weights-only] [--recalibrate] [--dropout 0] [--scale 1]
+//!     [--second-pool | --no-second-pool]
 //!     [--out target/metric-training] [--fit2-stats] [--eval MODEL [--test-seed S]]
 //! ```
-//! Data are cached as `.npz` under `--out` (delete them to regenerate); the trained model is
-//! written there as a pbdl checkpoint, the per-step log as `train_log.csv`, the table as `table.md`.
+//! `--test 0` trains and scores the validation sets only (Adv and Bur of seed `seed + 500`),
+//! for choosing settings without the test sets. Data are cached as `.npz` under `--out` (delete
+//! them to regenerate); the trained model is written there as a pbdl checkpoint (`metric`, and
+//! the untrained control `metric_untrained`), the per-step log as `train_log.csv`, the table
+//! (with the control row) as `table.md`.
 
 use pbdl_metrics::train::data::{cached, generate, load_sequences, DataConfig, Kind};
 use pbdl_metrics::train::experiment::cache_name;
@@ -74,6 +79,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let cfg = ExperimentConfig {
         train_per_kind: arg(&args, "--train", d.train_per_kind),
         test_per_kind: arg(&args, "--test", d.test_per_kind),
+        val_per_kind: arg(&args, "--val", d.val_per_kind),
+        train_base: !args.iter().any(|a| a == "--weights-only"),
+        recalibrate: args.iter().any(|a| a == "--recalibrate"),
+        dropout: arg(&args, "--dropout", d.dropout),
+        input_scale: arg(&args, "--scale", d.input_scale),
+        second_pool: if args.iter().any(|a| a == "--second-pool") {
+            true
+        } else {
+            !args.iter().any(|a| a == "--no-second-pool") && d.second_pool
+        },
         epochs: arg(&args, "--epochs", d.epochs),
         width: arg(&args, "--width", d.width),
         resolution: arg(&args, "--res", d.resolution),

@@ -414,3 +414,67 @@ fn bad_settings_are_typed_errors() {
     assert!(train(&mut tiny_net(0), &seqs, &TrainConfig { crop: 0.0, ..Default::default() }).is_err());
     assert!(train(&mut tiny_net(0), &seqs, &TrainConfig { dropout: 1.0, ..Default::default() }).is_err());
 }
+
+#[test]
+fn input_scale_and_second_pool_give_the_conv_arithmetic_sizes() {
+    // 56 cells: conv 12/4/2 -> (56 + 4 - 12) / 4 + 1 = 13, pool 4/2 -> 5, conv 5/1/2 -> 5,
+    // pool -> 1, then 1, 1. Without the second pool the last three stay 5; upsampled x2 (112):
+    // 27, pool -> 12, 12, pool -> 5, 5, 5.
+    let x = Tensor::zeros((2, 1, 56, 56), DType::F64, &Device::Cpu).unwrap();
+    let sizes = |cfg: MetricNetConfig| -> Vec<usize> {
+        let net = MetricNet::new(MetricNetConfig { width: 1.0 / 16.0, ..cfg }).unwrap();
+        net.features(&x).unwrap().iter().map(|f| f.dim(2).unwrap()).collect()
+    };
+    assert_eq!(sizes(MetricNetConfig::default()), [13, 5, 1, 1, 1]);
+    assert_eq!(sizes(MetricNetConfig { second_pool: false, ..Default::default() }), [13, 5, 5, 5, 5]);
+    assert_eq!(sizes(MetricNetConfig { input_scale: 2, ..Default::default() }), [27, 12, 5, 5, 5]);
+    assert!(MetricNet::new(MetricNetConfig { input_scale: 0, ..Default::default() }).is_err());
+    // The options survive a save / load round trip.
+    let seqs = generate(Kind::Shapes, 1, &DataConfig { resolution: 48, seed: 2 }).unwrap();
+    let cfg = MetricNetConfig { width: 1.0 / 16.0, input_scale: 2, second_pool: false, ..Default::default() };
+    let mut net = MetricNet::new(cfg).unwrap();
+    net.calibrate([&to_byte_range(&seqs[0].frames).unwrap()]).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    net.save(dir.path().join("m"), 0).unwrap();
+    let back = MetricNet::load(dir.path().join("m")).unwrap();
+    assert_eq!(back.config(), &cfg);
+    let pairs = [(0, 4), (2, 9)];
+    assert_eq!(
+        net.sequence_distances(&seqs[0].frames, &pairs).unwrap().to_vec1::<f32>().unwrap(),
+        back.sequence_distances(&seqs[0].frames, &pairs).unwrap().to_vec1::<f32>().unwrap()
+    );
+}
+
+#[test]
+fn weights_only_training_keeps_the_convs_and_recalibration_follows_them() {
+    let seqs = generate(Kind::Shapes, 3, &DataConfig { resolution: 48, seed: 11 }).unwrap();
+    let base = TrainConfig {
+        epochs: 2,
+        adam: pbdl_core::train::AdamConfig { lr: 1e-3, ..Default::default() },
+        augment: false,
+        crop: 1.0,
+        dropout: 0.0,
+        ..Default::default()
+    };
+    let values = |net: &MetricNet| -> Vec<Vec<f32>> {
+        net.vars().iter().map(|v| v.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect()
+    };
+    let before = values(&tiny_net(4));
+    let mut net = tiny_net(4);
+    train(&mut net, &seqs, &TrainConfig { train_base: false, ..base }).unwrap();
+    let after = values(&net);
+    assert_eq!(before[..10], after[..10], "conv weights and biases must not move");
+    assert_ne!(before[10..], after[10..], "channel weights must move");
+    // Recalibrating after each epoch: the statistics are those of a fresh calibration pass with
+    // the trained conv weights (crop 1.0: the same frames), not those of the initial weights.
+    let mut frozen = tiny_net(4);
+    train(&mut frozen, &seqs, &base).unwrap();
+    let mut recal = tiny_net(4);
+    train(&mut recal, &seqs, &TrainConfig { recalibrate: true, ..base }).unwrap();
+    let mean0 = |n: &MetricNet| n.stats().unwrap()[0].mean.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let mut check = recal.clone();
+    let inputs: Vec<Tensor> = seqs.iter().map(|s| to_byte_range(&s.frames).unwrap()).collect();
+    check.calibrate(inputs.iter()).unwrap();
+    assert_eq!(mean0(&recal), mean0(&check));
+    assert_ne!(mean0(&recal), mean0(&frozen));
+}

@@ -40,6 +40,13 @@ pub struct TrainConfig {
     pub dropout: f64,
     /// Gradient clipping. Default none.
     pub clip: ClipConfig,
+    /// Train the conv layers of the base network too (LSiM trains its base network from
+    /// scratch). `false`: only the channel weights train, on the random features. Default true.
+    pub train_base: bool,
+    /// Recompute the normalisation statistics after every epoch with the current conv weights
+    /// (on new random crops). `false`: the statistics of the calibration pass before training
+    /// stay frozen while the features they normalise change. Default false.
+    pub recalibrate: bool,
     /// Seed of the shuffling and the augmentation. Default 0.
     pub seed: u64,
     /// Show a progress bar (only on a terminal). Default off.
@@ -57,6 +64,8 @@ impl Default for TrainConfig {
             crop: 0.875,
             dropout: 0.5,
             clip: ClipConfig::None,
+            train_base: true,
+            recalibrate: false,
             seed: 0,
             progress: false,
         }
@@ -132,6 +141,19 @@ pub fn sequence_loss_dropout(
     metric_loss(&d, &g, loss)
 }
 
+/// One calibration pass of `net` over one random crop (fraction `crop`) of every sequence.
+fn calibrate_on_crops(net: &mut MetricNet, data: &[Sequence], crop: f64, rng: &mut impl Rng) -> Result<()> {
+    let inputs: Vec<Tensor> = data
+        .iter()
+        .map(|s| {
+            let f =
+                if crop < 1.0 { random_crop(&s.frames, crop_side(&s.frames, crop)?, rng)? } else { s.frames.clone() };
+            to_byte_range(&f)
+        })
+        .collect::<Result<_>>()?;
+    net.calibrate(inputs.iter())
+}
+
 /// Calibrates `net` on `data` (if it has no statistics yet) and trains it.
 pub fn train(net: &mut MetricNet, data: &[Sequence], cfg: &TrainConfig) -> Result<TrainReport> {
     if data.is_empty() {
@@ -146,22 +168,11 @@ pub fn train(net: &mut MetricNet, data: &[Sequence], cfg: &TrainConfig) -> Resul
     let t0 = Instant::now();
     let mut rng = pbdl_core::seed::rng(cfg.seed);
     if net.stats().is_none() {
-        let inputs: Vec<Tensor> = data
-            .iter()
-            .map(|s| {
-                let f = if cfg.crop < 1.0 {
-                    random_crop(&s.frames, crop_side(&s.frames, cfg.crop)?, &mut rng)?
-                } else {
-                    s.frames.clone()
-                };
-                to_byte_range(&f)
-            })
-            .collect::<Result<_>>()?;
-        net.calibrate(inputs.iter())?;
+        calibrate_on_crops(net, data, cfg.crop, &mut rng)?;
     }
     let calibration_seconds = t0.elapsed().as_secs_f64();
     let gts: Vec<Vec<f64>> = data.iter().map(|s| ground_truth(cfg.ground_truth, &s.frames)).collect::<Result<_>>()?;
-    let vars = net.vars();
+    let vars = if cfg.train_base { net.vars() } else { net.channel_weights() };
     let mut opt = OptimizerConfig::Adam(cfg.adam).build(vars.clone())?;
     let mut guard = NanGuard::new();
     let mut log = ScalarLog::new();
@@ -189,6 +200,9 @@ pub fn train(net: &mut MetricNet, data: &[Sequence], cfg: &TrainConfig) -> Resul
             step += 1;
         }
         epoch_loss.push(sum / data.len() as f64);
+        if cfg.recalibrate && cfg.train_base {
+            calibrate_on_crops(net, data, cfg.crop, &mut rng)?;
+        }
     }
     bar.finish();
     Ok(TrainReport { epoch_loss, log, calibration_seconds, train_seconds: t1.elapsed().as_secs_f64() })

@@ -21,6 +21,7 @@ use crate::{Error, Result};
 use candle_core::{DType, Device, Tensor, Var};
 use pbdl_core::conv::{conv2d, Conv2dParams};
 use pbdl_core::io::{load_checkpoint, save_checkpoint, CheckpointMeta};
+use pbdl_core::sample::Resize;
 use std::path::Path;
 
 /// One conv layer of the base network: `(c_out at width 1, kernel, stride, padding, pool before)`.
@@ -41,11 +42,18 @@ pub struct MetricNetConfig {
     pub lin_init: f64,
     /// Seed of the conv initialisation. Default 0.
     pub seed: u64,
+    /// Integer factor by which the frames are upsampled (bilinear) before the first conv, so
+    /// that the deepest feature maps of small frames are larger than 1 x 1 (the published model
+    /// resizes to 224). 1: none. Default 1.
+    pub input_scale: usize,
+    /// Max-pool before the third conv layer (the published architecture). `false` keeps the
+    /// last three feature maps at the size of the second. Default true.
+    pub second_pool: bool,
 }
 
 impl Default for MetricNetConfig {
     fn default() -> Self {
-        Self { width: 1.0, in_channels: 1, lin_init: 0.1, seed: 0 }
+        Self { width: 1.0, in_channels: 1, lin_init: 0.1, seed: 0, input_scale: 1, second_pool: true }
     }
 }
 
@@ -80,11 +88,15 @@ impl MetricNet {
     /// A network with seeded PyTorch-default initialisation (uniform in `+-1/sqrt(fan_in)` for
     /// weights and biases) and channel weights `lin_init`, `f32`, uncalibrated.
     pub fn new(cfg: MetricNetConfig) -> Result<Self> {
-        if !(cfg.width > 0.0 && cfg.width.is_finite()) || cfg.in_channels == 0 || cfg.lin_init < 0.0 {
+        if !(cfg.width > 0.0 && cfg.width.is_finite())
+            || cfg.in_channels == 0
+            || cfg.lin_init < 0.0
+            || cfg.input_scale == 0
+        {
             return Err(Error::invalid(
                 "MetricNet::new",
                 "cfg",
-                format!("need width > 0, in_channels >= 1, lin_init >= 0; got {cfg:?}"),
+                format!("need width > 0, in_channels >= 1, lin_init >= 0, input_scale >= 1; got {cfg:?}"),
             ));
         }
         let dev = Device::Cpu;
@@ -111,6 +123,11 @@ impl MetricNet {
     /// Every trainable variable (conv weights and biases, then the channel weights).
     pub fn vars(&self) -> Vec<Var> {
         self.convs.iter().flat_map(|(w, b)| [w.clone(), b.clone()]).chain(self.lin.iter().cloned()).collect()
+    }
+
+    /// The channel weights only (one `[1, C, 1, 1]` variable per feature layer).
+    pub fn channel_weights(&self) -> Vec<Var> {
+        self.lin.clone()
     }
 
     /// Number of trainable parameters.
@@ -168,9 +185,13 @@ impl MetricNet {
         }
         self.check_params(params)?;
         let mut h = x.to_dtype(params[0].dtype())?;
+        if self.cfg.input_scale > 1 {
+            let (y, w) = (h.dim(2)? * self.cfg.input_scale, h.dim(3)? * self.cfg.input_scale);
+            h = pbdl_core::sample::resize2d(&h, (y, w), Resize::Bilinear { align_corners: false })?;
+        }
         let mut out = Vec::with_capacity(BASE.len());
         for (l, &(_, _, stride, padding, pool)) in BASE.iter().enumerate() {
-            if pool {
+            if pool && (l < 2 || self.cfg.second_pool) {
                 h = max_pool2d(&h, POOL.0, POOL.1)?;
             }
             let p = Conv2dParams::default().stride(stride).padding(padding);
@@ -372,6 +393,7 @@ impl MetricNet {
         let config = serde_json::json!({
             "width": self.cfg.width, "in_channels": self.cfg.in_channels,
             "lin_init": self.cfg.lin_init, "seed": self.cfg.seed,
+            "input_scale": self.cfg.input_scale, "second_pool": self.cfg.second_pool,
         });
         save_checkpoint(path, named, &CheckpointMeta { step, seed: Some(self.cfg.seed), config })?;
         Ok(())
@@ -387,6 +409,8 @@ impl MetricNet {
             in_channels: num("in_channels").unwrap_or(1.0) as usize,
             lin_init: num("lin_init").unwrap_or(0.1),
             seed: num("seed").unwrap_or(0.0) as u64,
+            input_scale: num("input_scale").unwrap_or(1.0) as usize,
+            second_pool: c.get("second_pool").and_then(|v| v.as_bool()).unwrap_or(true),
         };
         let mut net = Self::new(cfg)?;
         let get = |name: String, like: &Tensor| -> Result<Tensor> {
