@@ -20,8 +20,9 @@
 //! over training; the bench entry `cartpole` compares modes F, P and C for `NC = 1..4`.
 
 use crate::bptt::{gradients, GradientMode};
+pub use crate::controller::DenseController;
 use crate::error::Result;
-use candle_core::{DType, Device, Tensor, Var};
+use candle_core::{Device, Tensor};
 use candle_nn::Optimizer;
 use pbdl_core::train::{AdamConfig, ClipConfig, OptimizerConfig};
 use rand::Rng;
@@ -102,47 +103,9 @@ impl CartPole {
     }
 }
 
-/// The controller `2 (1 + NC) -> width -> width -> 1` with tanh hidden layers; the last layer
-/// starts at zero (as the official scripts effectively do), so training starts from `F = 0`.
-#[derive(Clone, Debug)]
-pub struct Controller {
-    vars: Vec<Var>,
-}
-
-impl Controller {
-    /// Glorot-uniform hidden weights from `seed`, zero biases and a zero last layer.
-    pub fn new(inputs: usize, width: usize, seed: u64) -> Result<Self> {
-        let mut rng = pbdl_core::seed::rng(seed);
-        let mut glorot = |a: usize, b: usize| -> Result<Var> {
-            let lim = (6.0 / (a + b) as f64).sqrt();
-            let v: Vec<f64> = (0..a * b).map(|_| rng.random_range(-lim..lim)).collect();
-            Ok(Var::from_tensor(&Tensor::from_vec(v, (a, b), &Device::Cpu)?)?)
-        };
-        let zeros = |shape: (usize, usize)| -> Result<Var> { Ok(Var::zeros(shape, DType::F64, &Device::Cpu)?) };
-        let vars = vec![
-            glorot(inputs, width)?,
-            zeros((1, width))?,
-            glorot(width, width)?,
-            zeros((1, width))?,
-            zeros((width, 1))?,
-            zeros((1, 1))?,
-        ];
-        Ok(Self { vars })
-    }
-
-    /// The trainable variables.
-    pub fn vars(&self) -> &[Var] {
-        &self.vars
-    }
-
-    /// The force `[b, 1]` for states `s: [b, inputs]`.
-    pub fn forward(&self, s: &Tensor) -> candle_core::Result<Tensor> {
-        let v = &self.vars;
-        let h = s.matmul(v[0].as_tensor())?.broadcast_add(v[1].as_tensor())?.tanh()?;
-        let h = h.matmul(v[2].as_tensor())?.broadcast_add(v[3].as_tensor())?.tanh()?;
-        h.matmul(v[4].as_tensor())?.broadcast_add(v[5].as_tensor())
-    }
-}
+/// The cart-pole controller `2 (1 + NC) -> width -> width -> 1` (tanh), built with
+/// [`DenseController::with_zero_last_layer`] so training starts from `F = 0`.
+pub type Controller = DenseController;
 
 /// Settings of one cart-pole training run.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -206,7 +169,7 @@ pub fn evaluate(physics: &CartPole, net: &Controller, test: &Tensor) -> Result<f
 /// Trains a fresh controller with `cfg` (Adam on the mode's gradient) and records the test loss.
 pub fn train(cfg: &CartPoleConfig) -> Result<CartPoleRun> {
     let phys = cfg.physics;
-    let net = Controller::new(phys.state_dim(), cfg.width, cfg.seed)?;
+    let net = Controller::with_zero_last_layer(phys.state_dim(), cfg.width, 1, cfg.seed)?;
     let train = phys.initial_states(cfg.train, cfg.seed)?;
     let test = phys.initial_states(cfg.test, cfg.seed + 1)?;
     let mut opt = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, ..Default::default() }).build(net.vars().to_vec())?;

@@ -28,8 +28,9 @@
 //! `rc in {1, 0.1, 0.01, 0.001}`.
 
 use crate::bptt::{gradients, GradientMode};
+pub use crate::controller::DenseController;
 use crate::error::{Error, Result};
-use candle_core::{DType, Device, Tensor, Var};
+use candle_core::{Device, Tensor};
 use candle_nn::Optimizer;
 use pbdl_core::train::{AdamConfig, ClipConfig, OptimizerConfig};
 use rand::Rng;
@@ -274,48 +275,6 @@ impl GuidanceStepper {
             .narrow(3, 0, 2)?;
         let c = all.narrow(2, p.phys_dim(), p.control_dim())?;
         xe.sqr()?.mean_all()? + (c.sqr()?.mean_all()? * rc)?
-    }
-}
-
-/// A dense controller `inputs -> width -> width -> outputs`, tanh hidden layers, Glorot-uniform
-/// weights (the last layer too, as in the official guidance run) and zero biases.
-#[derive(Clone, Debug)]
-pub struct DenseController {
-    vars: Vec<Var>,
-}
-
-impl DenseController {
-    /// A fresh controller from `seed`.
-    pub fn new(inputs: usize, width: usize, outputs: usize, seed: u64) -> Result<Self> {
-        let mut rng = pbdl_core::seed::rng(seed);
-        let mut glorot = |a: usize, b: usize| -> Result<Var> {
-            let lim = (6.0 / (a + b) as f64).sqrt();
-            let v: Vec<f64> = (0..a * b).map(|_| rng.random_range(-lim..lim)).collect();
-            Ok(Var::from_tensor(&Tensor::from_vec(v, (a, b), &Device::Cpu)?)?)
-        };
-        let zeros = |k: usize| -> Result<Var> { Ok(Var::zeros((1, k), DType::F64, &Device::Cpu)?) };
-        let vars = vec![
-            glorot(inputs, width)?,
-            zeros(width)?,
-            glorot(width, width)?,
-            zeros(width)?,
-            glorot(width, outputs)?,
-            zeros(outputs)?,
-        ];
-        Ok(Self { vars })
-    }
-
-    /// The trainable variables.
-    pub fn vars(&self) -> &[Var] {
-        &self.vars
-    }
-
-    /// The controls `[b, outputs]` for inputs `[b, inputs]`.
-    pub fn forward(&self, s: &Tensor) -> candle_core::Result<Tensor> {
-        let v = &self.vars;
-        let h = s.matmul(v[0].as_tensor())?.broadcast_add(v[1].as_tensor())?.tanh()?;
-        let h = h.matmul(v[2].as_tensor())?.broadcast_add(v[3].as_tensor())?.tanh()?;
-        h.matmul(v[4].as_tensor())?.broadcast_add(v[5].as_tensor())
     }
 }
 

@@ -9,6 +9,7 @@
 //! | [`physics`] | the [`physics::Physics`] trait (forward + exact Jacobian) and the experiments' physics: linear chain, nonlinear oscillators (RK4), Poisson 8x8, quantum dipole (Crank-Nicolson) |
 //! | [`bptt`] | stabilized BPTT: gradient modes F, P, S, C for any candle rollout, with value / global-norm clipping |
 //! | [`cartpole`] | cart-pole with 1..N poles, differentiable in candle, and the stabilized-BPTT training run on it |
+//! | [`controller`] | [`controller::DenseController`]: the dense tanh controller of the BPTT experiments |
 //! | [`guidance`] | guidance by repulsion (drivers herd evaders), differentiable in candle, and its stabilized-BPTT run |
 //! | [`quantum_control`] | a particle in a box steered into eigenstate 3-5 (Crank-Nicolson custom op with adjoint), and its stabilized-BPTT run |
 //! | [`racecar`] | the racecar reverse-pass reconstruction loss (transposed shared weights) for dense nets, BN + ReLU nets ([`racecar::bn_mlp`]) and conv nets ([`racecar::conv_net`]), the orthogonality baseline ([`racecar::ortho`]), procedural peak images and the SVD alignment analysis ([`racecar::svd`], [`racecar::peak_experiment`]) |
@@ -37,6 +38,7 @@
 
 pub mod bptt;
 pub mod cartpole;
+pub mod controller;
 mod entries;
 pub mod error;
 pub mod guidance;

@@ -60,7 +60,7 @@ fn start_states_hang_down_and_loss_is_near_two() {
 fn mode_f_gradient_matches_finite_differences() {
     let mut p = CartPole::new(2);
     p.steps = 20;
-    let net = Controller::new(p.state_dim(), 6, 5).unwrap();
+    let net = Controller::with_zero_last_layer(p.state_dim(), 6, 1, 5).unwrap();
     // Give the zero-initialised last layer values so that every parameter matters.
     let w = Tensor::new(&[[0.7f64], [-0.4], [1.1], [0.3], [-0.9], [0.5]], &Device::Cpu).unwrap();
     net.vars()[4].set(&w).unwrap();
