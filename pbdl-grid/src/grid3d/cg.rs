@@ -17,6 +17,7 @@ use super::box_pressure::{make_incompressible_box, project_box_slice, BoxSolver}
 use super::field::MacField3d;
 use super::walls::WallGeom;
 use super::{CavityWalls, Grid3d};
+use crate::pressure::cg::{dot, pcg, remove_mean};
 use crate::pressure::{CgPreconditioner, CgSettings, CgStats};
 use crate::{Error, Result};
 use candle_core::{DType, Tensor};
@@ -188,44 +189,10 @@ impl CgBox3d {
             x.fill(0.0);
             return Ok(CgStats { iterations: 0, rel_residual: 0.0 });
         }
-        let target = self.settings.rel_tol * bnorm;
-        let (mut z, mut q) = (vec![0.0; n], vec![0.0; n]);
-        // r = b - A x (the start); a start already within the tolerance costs no iteration.
-        self.matvec(x, &mut q);
-        let mut r: Vec<f64> = b.iter().zip(&q).map(|(b, q)| b - q).collect();
-        let mut rnorm = dot(&r, &r).sqrt();
-        if rnorm <= target {
-            remove_mean(x);
-            return Ok(CgStats { iterations: 0, rel_residual: rnorm / bnorm });
-        }
-        self.precondition(&r, &mut z);
-        let mut d = z.clone();
-        let mut rz = dot(&r, &z);
-        for it in 1..=self.settings.max_iter {
-            self.matvec(&d, &mut q);
-            let dq = dot(&d, &q);
-            if !(dq > 0.0 && rz.is_finite()) {
-                return Err(self.not_converged(it, rnorm / bnorm, "the search direction lost positive curvature"));
-            }
-            let alpha = rz / dq;
-            for ((xi, ri), (di, qi)) in x.iter_mut().zip(r.iter_mut()).zip(d.iter().zip(&q)) {
-                *xi += alpha * di;
-                *ri -= alpha * qi;
-            }
-            rnorm = dot(&r, &r).sqrt();
-            if rnorm <= target {
-                remove_mean(x);
-                return Ok(CgStats { iterations: it, rel_residual: rnorm / bnorm });
-            }
-            self.precondition(&r, &mut z);
-            let rz_new = dot(&r, &z);
-            let beta = rz_new / rz;
-            rz = rz_new;
-            for (di, zi) in d.iter_mut().zip(&z) {
-                *di = zi + beta * *di;
-            }
-        }
-        Err(self.not_converged(self.settings.max_iter, rnorm / bnorm, "raise max_iter or loosen rel_tol"))
+        let stats = pcg(b, x, bnorm, &self.settings, |v, out| self.matvec(v, out), |r, z| self.precondition(r, z))
+            .map_err(|(it, rel, hint)| self.not_converged(it, rel, hint))?;
+        remove_mean(x);
+        Ok(stats)
     }
 
     fn not_converged(&self, iterations: usize, rel: f64, hint: &str) -> Error {
@@ -266,15 +233,6 @@ impl CgBox3d {
         let t = Tensor::from_vec(w, u.values().shape(), u.values().device())?.to_dtype(u.values().dtype())?;
         Ok((MacField3d::from_parts(t, self.grid), worst))
     }
-}
-
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-fn remove_mean(x: &mut [f64]) {
-    let m = x.iter().sum::<f64>() / x.len() as f64;
-    x.iter_mut().for_each(|v| *v -= m);
 }
 
 /// Projects `u` in the closed box onto discretely divergence-free fields with zero normal

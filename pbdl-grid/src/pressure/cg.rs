@@ -257,7 +257,6 @@ impl CgPressureSolver {
 
     /// Solves `A x = b` on the unknowns; `x` holds the start and receives the solution.
     fn solve_unknowns(&self, b: &mut [f64], x: &mut [f64]) -> Result<CgStats> {
-        let n = b.len();
         if self.singular {
             remove_mean(b);
             remove_mean(x);
@@ -267,47 +266,12 @@ impl CgPressureSolver {
             x.fill(0.0);
             return Ok(CgStats { iterations: 0, rel_residual: 0.0 });
         }
-        let mut r = vec![0.0; n];
-        self.matvec(x, &mut r);
-        for (ri, bi) in r.iter_mut().zip(b.iter()) {
-            *ri = bi - *ri;
+        let stats = pcg(b, x, bnorm, &self.settings, |v, out| self.matvec(v, out), |r, z| self.precondition(r, z))
+            .map_err(|(it, rel, hint)| self.not_converged(it, rel, hint))?;
+        if self.singular && stats.iterations > 0 {
+            remove_mean(x);
         }
-        let target = self.settings.rel_tol * bnorm;
-        let mut rnorm = dot(&r, &r).sqrt();
-        if rnorm <= target {
-            return Ok(CgStats { iterations: 0, rel_residual: rnorm / bnorm });
-        }
-        let (mut z, mut q) = (vec![0.0; n], vec![0.0; n]);
-        self.precondition(&r, &mut z);
-        let mut d = z.clone();
-        let mut rz = dot(&r, &z);
-        for it in 1..=self.settings.max_iter {
-            self.matvec(&d, &mut q);
-            let dq = dot(&d, &q);
-            if !(dq > 0.0 && rz.is_finite()) {
-                return Err(self.not_converged(it, rnorm / bnorm, "the search direction lost positive curvature"));
-            }
-            let alpha = rz / dq;
-            for ((xi, ri), (di, qi)) in x.iter_mut().zip(r.iter_mut()).zip(d.iter().zip(&q)) {
-                *xi += alpha * di;
-                *ri -= alpha * qi;
-            }
-            rnorm = dot(&r, &r).sqrt();
-            if rnorm <= target {
-                if self.singular {
-                    remove_mean(x);
-                }
-                return Ok(CgStats { iterations: it, rel_residual: rnorm / bnorm });
-            }
-            self.precondition(&r, &mut z);
-            let rz_new = dot(&r, &z);
-            let beta = rz_new / rz;
-            rz = rz_new;
-            for (di, zi) in d.iter_mut().zip(&z) {
-                *di = zi + beta * *di;
-            }
-        }
-        Err(self.not_converged(self.settings.max_iter, rnorm / bnorm, "raise max_iter or loosen rel_tol"))
+        Ok(stats)
     }
 
     fn not_converged(&self, iterations: usize, rel: f64, hint: &str) -> Error {
@@ -557,11 +521,61 @@ impl Kernel1 for CgProjectionAdjoint {
     }
 }
 
-fn dot(a: &[f64], b: &[f64]) -> f64 {
+/// Preconditioned conjugate gradients for `A x = b` from the start `x` (2D and 3D share it):
+/// stops when `|b - A x| <= rel_tol * bnorm`. On failure gives (iterations, relative residual,
+/// hint) for the caller's typed error.
+pub(crate) fn pcg(
+    b: &[f64],
+    x: &mut [f64],
+    bnorm: f64,
+    settings: &CgSettings,
+    matvec: impl Fn(&[f64], &mut [f64]),
+    precondition: impl Fn(&[f64], &mut [f64]),
+) -> std::result::Result<CgStats, (usize, f64, &'static str)> {
+    let n = b.len();
+    let target = settings.rel_tol * bnorm;
+    let (mut z, mut q) = (vec![0.0; n], vec![0.0; n]);
+    // r = b - A x (the start); a start already within the tolerance costs no iteration.
+    matvec(x, &mut q);
+    let mut r: Vec<f64> = b.iter().zip(&q).map(|(b, q)| b - q).collect();
+    let mut rnorm = dot(&r, &r).sqrt();
+    if rnorm <= target {
+        return Ok(CgStats { iterations: 0, rel_residual: rnorm / bnorm });
+    }
+    precondition(&r, &mut z);
+    let mut d = z.clone();
+    let mut rz = dot(&r, &z);
+    for it in 1..=settings.max_iter {
+        matvec(&d, &mut q);
+        let dq = dot(&d, &q);
+        if !(dq > 0.0 && rz.is_finite()) {
+            return Err((it, rnorm / bnorm, "the search direction lost positive curvature"));
+        }
+        let alpha = rz / dq;
+        for ((xi, ri), (di, qi)) in x.iter_mut().zip(r.iter_mut()).zip(d.iter().zip(&q)) {
+            *xi += alpha * di;
+            *ri -= alpha * qi;
+        }
+        rnorm = dot(&r, &r).sqrt();
+        if rnorm <= target {
+            return Ok(CgStats { iterations: it, rel_residual: rnorm / bnorm });
+        }
+        precondition(&r, &mut z);
+        let rz_new = dot(&r, &z);
+        let beta = rz_new / rz;
+        rz = rz_new;
+        for (di, zi) in d.iter_mut().zip(&z) {
+            *di = zi + beta * *di;
+        }
+    }
+    Err((settings.max_iter, rnorm / bnorm, "raise max_iter or loosen rel_tol"))
+}
+
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
-fn remove_mean(x: &mut [f64]) {
+pub(crate) fn remove_mean(x: &mut [f64]) {
     let m = x.iter().sum::<f64>() / x.len() as f64;
     x.iter_mut().for_each(|v| *v -= m);
 }

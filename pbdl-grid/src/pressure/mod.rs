@@ -18,7 +18,7 @@
 //!   preconditioned conjugate gradients (MIC(0) or Jacobi), warm-started, with a relative
 //!   tolerance; slower than the factor at 64^2-256^2 (see `benches/pressure.rs`).
 
-mod cg;
+pub(crate) mod cg;
 mod cholesky;
 mod fft;
 mod masked;
