@@ -8,7 +8,7 @@
 #![allow(missing_docs)]
 
 use candle_core::{DType, Device, Tensor, Var};
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, Criterion};
 use pbdl_core::conv::{conv2d, Conv2dParams};
 use std::hint::black_box;
 use std::time::Duration;
@@ -62,4 +62,9 @@ fn bench(c: &mut Criterion) {
 }
 
 criterion_group!(benches, bench);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

@@ -16,6 +16,7 @@
 //! | [`nn`] | layer/group/RMS norm, softmax and activations that train (candle's fused ones have no backward) |
 //! | [`train`] | optimisers (Adam/AdamW/SGD+momentum) from serde configs, lr schedules, gradient clipping, CSV/JSON scalar logs, progress bar, divergence guard |
 //! | [`sample`] | differentiable bilinear/trilinear sampling at points and warping (clamped or periodic), resize (nearest, bilinear, bicubic) |
+//! | [`threads`] | [`threads::pin_thread_count`]: fix candle's CPU thread count once per process (it otherwise re-counts cores on every matmul) |
 //! | [`io`] | atomic writes, checkpoints (safetensors + JSON sidecar, resume from the latest), `.npy`/`.npz` with typed errors |
 //! | [`viz`] | colormaps (viridis, blue-white-red), field and quiver PNGs (y up), rollout GIFs, line and Pareto plots with a bundled font |
 //!
@@ -35,6 +36,7 @@ pub mod real;
 pub mod registry;
 pub mod sample;
 pub mod seed;
+pub mod threads;
 pub mod train;
 pub mod viz;
 

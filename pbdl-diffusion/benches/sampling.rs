@@ -8,7 +8,7 @@
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 use candle_core::{DType, Device};
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, Criterion};
 use pbdl_diffusion::ddpm::{Conditioning, Diffusion, GaussianOracle};
 use pbdl_diffusion::schedule::NoiseSchedule;
 
@@ -33,4 +33,9 @@ fn sampling(c: &mut Criterion) {
 }
 
 criterion_group!(benches, sampling);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

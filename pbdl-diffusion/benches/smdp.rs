@@ -9,7 +9,7 @@
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 use candle_core::{DType, Var};
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, Criterion};
 use pbdl_diffusion::smdp::heat::{heat_step, HeatProblem};
 use pbdl_diffusion::smdp::loss::{multi_step_loss, one_step_loss, LossWorkspace};
 use pbdl_diffusion::smdp::mlp::{Adam, ScoreMlp};
@@ -61,4 +61,9 @@ fn smdp(c: &mut Criterion) {
 }
 
 criterion_group!(benches, smdp);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

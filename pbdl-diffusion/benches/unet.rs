@@ -10,7 +10,7 @@
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, BenchmarkId, Criterion};
 use pbdl_diffusion::unet::workload::{UnetFixture, UnetWorkload};
 
 fn workloads() -> Vec<UnetWorkload> {
@@ -34,4 +34,9 @@ fn unet(c: &mut Criterion) {
 }
 
 criterion_group!(benches, unet);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

@@ -8,6 +8,7 @@ use pbdl_diffusion::acdm::eval::{evaluate, EvalConfig, EvalReport};
 use pbdl_diffusion::acdm::model::{Method, Model, ModelConfig, Sampler};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
     let a: Vec<String> = std::env::args().skip(1).collect();
     let method = match a.first().map(String::as_str).unwrap_or("unet") {
         "acdm" => Method::Acdm,

@@ -7,6 +7,7 @@ use pbdl_diffusion::acdm::model::{Method, Model, ModelConfig};
 use pbdl_diffusion::acdm::train::{loss, sample_windows};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
     let a: Vec<String> = std::env::args().skip(1).collect();
     let variant = a.first().cloned().unwrap_or_default();
     let method = if variant == "unet" { Method::Unet } else { Method::Acdm };

@@ -4,7 +4,7 @@
 #![allow(missing_docs)] // criterion_group! generates an undocumented pub fn
 
 use candle_core::DType;
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, BenchmarkId, Criterion};
 use pbdl_grid::advect::{flux_form, mac_cormack, semi_lagrangian};
 use pbdl_grid::{Boundaries, CenteredField, Grid, MacField, ScalarBoundaries};
 use std::f64::consts::PI;
@@ -38,4 +38,9 @@ fn advection(c: &mut Criterion) {
 }
 
 criterion_group!(benches, advection);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

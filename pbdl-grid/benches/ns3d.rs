@@ -4,7 +4,7 @@
 #![allow(missing_docs)] // criterion_group! generates an undocumented pub fn
 
 use candle_core::DType;
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, BenchmarkId, Criterion};
 use pbdl_grid::grid3d::abc::abc_flow;
 use pbdl_grid::grid3d::{momentum, pressure, Grid3d, NavierStokes3d, NavierStokes3dConfig};
 use pbdl_grid::Scheme;
@@ -44,4 +44,9 @@ fn ns3d(c: &mut Criterion) {
 }
 
 criterion_group!(benches, ns3d);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

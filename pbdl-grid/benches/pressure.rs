@@ -6,7 +6,7 @@
 #![allow(missing_docs)] // criterion_group! generates an undocumented pub fn
 
 use candle_core::DType;
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, BenchmarkId, Criterion};
 use pbdl_grid::pressure::{make_incompressible_masked, CgPressureSolver, CgSettings, MaskedPressureSolver};
 use pbdl_grid::{Boundaries, Grid, MacField, Obstacle, ObstacleMask};
 use std::time::Duration;
@@ -56,4 +56,9 @@ fn pressure(c: &mut Criterion) {
 }
 
 criterion_group!(benches, pressure);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

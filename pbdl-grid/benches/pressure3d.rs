@@ -8,7 +8,7 @@
 #![allow(missing_docs)] // criterion_group! generates an undocumented pub fn
 
 use candle_core::DType;
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, BenchmarkId, Criterion};
 use pbdl_grid::grid3d::box_pressure::make_incompressible_box;
 use pbdl_grid::grid3d::{BoxSolver, CgBox3d, CholeskyBox3d, Grid3d, MacField3d};
 use pbdl_grid::pressure::CgSettings;
@@ -77,4 +77,9 @@ fn pressure3d(c: &mut Criterion) {
 }
 
 criterion_group!(benches, pressure3d);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

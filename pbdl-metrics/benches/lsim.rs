@@ -6,7 +6,7 @@
 #![allow(missing_docs)]
 
 use candle_core::{DType, Device};
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, Criterion};
 use pbdl_core::seed;
 use pbdl_metrics::classic::{ssim2d, SsimConfig};
 use pbdl_metrics::Lsim;
@@ -43,4 +43,9 @@ fn bench_ssim(c: &mut Criterion) {
 }
 
 criterion_group!(benches, bench_lsim, bench_ssim);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

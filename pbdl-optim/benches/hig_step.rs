@@ -1,15 +1,47 @@
 //! Criterion: one HIG step on the nonlinear oscillators (b = 128, J is 512 x 2956), split into
 //! the composed Jacobian, the solve alone (thin SVD vs eigendecomposition of `J J^T`) and the
 //! whole step (Jacobian + solve + update) for both decompositions. Goal: <= 0.3 s on 2 threads.
+//! The same network as a [`CandleModel`] (candle Vars + closure) shows the adapter's Jacobian
+//! cost next to the hand-written one, with rows from the batch graph and from per-sample graphs.
+//! Set `RAYON_NUM_THREADS`: without it candle 0.11 reads `/proc/cpuinfo` on every CPU matmul.
 //!
 //! `cargo bench -p pbdl-optim --bench hig_step`
 #![allow(missing_docs)] // criterion_group! generates an undocumented function
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use candle_core::{Device, Tensor, Var};
+use criterion::{criterion_group, Criterion};
 use faer::{MatRef, Par};
-use pbdl_optim::hig::{composed_jacobian, Decomposition, HalfInverse, HigConfig, HigTrainer};
+use pbdl_optim::hig::{
+    composed_jacobian, CandleModel, Decomposition, HalfInverse, HigConfig, HigTrainer, JacobianMode,
+};
 use pbdl_optim::mlp::{Activation, Mlp};
 use pbdl_optim::physics::{Dataset, Oscillators};
+
+/// `net` rebuilt from candle Vars (same weights, ReLU hidden layers, linear output).
+fn as_candle(net: &Mlp, mode: JacobianMode) -> CandleModel<impl Fn(&Tensor) -> candle_core::Result<Tensor>> {
+    let (sizes, p) = (net.sizes().to_vec(), net.params());
+    let mut vars = Vec::new();
+    let mut off = 0;
+    for w in sizes.windows(2) {
+        vars.push(Var::from_slice(&p[off..off + w[0] * w[1]], (w[1], w[0]), &Device::Cpu).expect("weight"));
+        off += w[0] * w[1];
+        vars.push(Var::from_slice(&p[off..off + w[1]], w[1], &Device::Cpu).expect("bias"));
+        off += w[1];
+    }
+    let layers = vars.clone();
+    let forward = move |x: &Tensor| {
+        let mut h = x.clone();
+        let n = layers.len() / 2;
+        for l in 0..n {
+            h = h.matmul(&layers[2 * l].t()?)?.broadcast_add(&layers[2 * l + 1])?;
+            if l + 1 < n {
+                h = h.relu()?;
+            }
+        }
+        Ok(h)
+    };
+    CandleModel::new(vars, sizes[0], sizes[sizes.len() - 1], forward).expect("model").with_mode(mode)
+}
 
 fn hig_step_oscillators(c: &mut Criterion) {
     let physics = Oscillators::nonlinear();
@@ -20,6 +52,12 @@ fn hig_step_oscillators(c: &mut Criterion) {
     group.bench_function("composed_jacobian_f64_j512x2956", |b| {
         b.iter(|| composed_jacobian(&net, &physics, data.all()).expect("jacobian"))
     });
+    for (name, mode) in [("batch_graph", JacobianMode::Batch), ("per_sample", JacobianMode::PerSample)] {
+        let model = as_candle(&net, mode);
+        group.bench_function(format!("composed_jacobian_candle_{name}_f64_j512x2956"), |b| {
+            b.iter(|| composed_jacobian(&model, &physics, data.all()).expect("jacobian"))
+        });
+    }
     let (jac, y) = composed_jacobian(&net, &physics, data.all()).expect("jacobian");
     let (rows, cols) = (y.len(), net.n_params());
     let j = MatRef::from_row_major_slice(&jac, rows, cols);
@@ -45,4 +83,9 @@ fn hig_step_oscillators(c: &mut Criterion) {
 }
 
 criterion_group!(benches, hig_step_oscillators);
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}

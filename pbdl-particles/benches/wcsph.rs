@@ -8,7 +8,7 @@
 
 #![allow(missing_docs)] // criterion_group! generates undocumented items
 
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, Criterion};
 use pbdl_core::Real;
 use pbdl_particles::{DamBreak, WcsphParams};
 
@@ -37,4 +37,9 @@ criterion_group! {
     config = Criterion::default().sample_size(10);
     targets = wcsph
 }
-criterion_main!(benches);
+fn main() {
+    // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
+    pbdl_core::threads::pin_thread_count();
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}
