@@ -257,3 +257,53 @@ impl Mlp {
         Ok(())
     }
 }
+
+/// HIG's model interface, delegating to the inherent methods (same numbers, parameters
+/// updated in place).
+impl crate::hig::JacobianModel for Mlp {
+    type Cache = MlpCache;
+
+    fn in_dim(&self) -> usize {
+        Mlp::in_dim(self)
+    }
+
+    fn out_dim(&self) -> usize {
+        Mlp::out_dim(self)
+    }
+
+    fn n_params(&self) -> usize {
+        Mlp::n_params(self)
+    }
+
+    fn read_params(&self, out: &mut [f64]) -> Result<()> {
+        check_len("parameter buffer length (Mlp parameter count)", self.params.len(), out.len())?;
+        out.copy_from_slice(&self.params);
+        Ok(())
+    }
+
+    fn write_params(&mut self, params: &[f64]) -> Result<()> {
+        self.set_params(params)
+    }
+
+    fn apply_update(&mut self, eta: f64, delta: &[f64]) -> Result<()> {
+        check_len("update length (Mlp parameter count)", self.params.len(), delta.len())?;
+        self.params.iter_mut().zip(delta).for_each(|(t, d)| *t -= eta * d);
+        Ok(())
+    }
+
+    fn forward(&self, x: &[f64], batch: usize, cache: &mut MlpCache) -> Result<()> {
+        Mlp::forward(self, x, batch, cache)
+    }
+
+    fn output<'c>(&self, cache: &'c MlpCache) -> &'c [f64] {
+        cache.output()
+    }
+
+    fn jacobian_rows(&self, cache: &MlpCache, cot: &[f64], rows_per_sample: usize, out: &mut [f64]) -> Result<()> {
+        Mlp::jacobian_rows(self, cache, cot, rows_per_sample, out)
+    }
+
+    fn gradient(&self, cache: &MlpCache, cot: &[f64], grad: &mut [f64]) -> Result<()> {
+        Mlp::gradient(self, cache, cot, grad)
+    }
+}

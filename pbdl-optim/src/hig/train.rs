@@ -7,24 +7,25 @@
 //! `g = d(L/b)/dy` (for least squares `2 (y - y*) / b`), flattened sample after sample.
 
 use super::loss::Loss;
+use super::model::JacobianModel;
 use super::solve::{HalfInverse, HigConfig, SolveInfo};
 use crate::error::{check_len, Error, Result};
-use crate::mlp::{Mlp, MlpCache};
 use crate::physics::{Batch, Dataset, Physics};
 use candle_core::{Device, Tensor, Var};
 use candle_nn::Optimizer;
 use faer::{MatRef, Par};
 use pbdl_core::train::{AdamConfig, Optim, OptimizerConfig};
 use rayon::prelude::*;
+use std::any::Any;
 use std::time::Instant;
 
 /// Runs the network on a batch and the physics (with its Jacobian) on every sample, in
 /// parallel. Fills `y: [b, ny]` and `jp: [b, ny, nu]`.
-fn forward_with_physics_jacobian(
-    net: &Mlp,
+fn forward_with_physics_jacobian<M: JacobianModel + ?Sized>(
+    net: &M,
     physics: &dyn Physics,
     batch: Batch<'_>,
-    cache: &mut MlpCache,
+    cache: &mut M::Cache,
     y: &mut Vec<f64>,
     jp: &mut Vec<f64>,
 ) -> Result<()> {
@@ -33,7 +34,7 @@ fn forward_with_physics_jacobian(
     check_len("batch targets length", b * ny, batch.targets.len())?;
     check_len("batch contexts length", b * nx, batch.contexts.len())?;
     net.forward(batch.inputs, b, cache)?;
-    let u = cache.output();
+    let u = net.output(cache);
     y.resize(b * ny, 0.0);
     jp.resize(b * ny * nu, 0.0);
     y.par_chunks_mut(ny).zip(jp.par_chunks_mut(ny * nu)).enumerate().try_for_each(|(s, (ys, js))| {
@@ -60,22 +61,47 @@ fn loss_and_gradient(loss: Loss, y: &[f64], target: &[f64], b: usize, ny: usize,
 /// (row `s * ny + k` is output component `k` of sample `s`), with the outcomes `y`.
 ///
 /// Each row is one backward pass through the network with the physics Jacobian's row as the
-/// cotangent: no finite differences anywhere.
-pub fn composed_jacobian(net: &Mlp, physics: &dyn Physics, batch: Batch<'_>) -> Result<(Vec<f64>, Vec<f64>)> {
-    let mut ws = Workspace::default();
-    forward_with_physics_jacobian(net, physics, batch, &mut ws.cache, &mut ws.y, &mut ws.jp)?;
+/// cotangent: no finite differences anywhere. Works for any [`JacobianModel`] (`&Mlp`,
+/// `&CandleModel`, ...).
+pub fn composed_jacobian<M: JacobianModel + ?Sized>(
+    net: &M,
+    physics: &dyn Physics,
+    batch: Batch<'_>,
+) -> Result<(Vec<f64>, Vec<f64>)> {
+    let mut cache = M::Cache::default();
+    let (mut y, mut jp) = (Vec::new(), Vec::new());
+    forward_with_physics_jacobian(net, physics, batch, &mut cache, &mut y, &mut jp)?;
     let rows = batch.len * physics.output_dim();
     let mut j = vec![0.0; rows * net.n_params()];
-    net.jacobian_rows(&ws.cache, &ws.jp, physics.output_dim(), &mut j)?;
-    Ok((j, ws.y))
+    net.jacobian_rows(&cache, &jp, physics.output_dim(), &mut j)?;
+    Ok((j, y))
 }
 
-#[derive(Debug, Default)]
+/// Buffers kept between steps. The model's cache is stored type-erased so that the trainers
+/// need no type parameter: a step with another model type starts a fresh one.
+#[derive(Debug)]
 struct Workspace {
-    cache: MlpCache,
+    cache: Box<dyn Any + Send>,
     y: Vec<f64>,
     jp: Vec<f64>,
     g: Vec<f64>,
+}
+
+impl Default for Workspace {
+    fn default() -> Self {
+        Self { cache: Box::new(()), y: Vec::new(), jp: Vec::new(), g: Vec::new() }
+    }
+}
+
+/// The cache of type `C` in `slot`, replacing whatever else it held by a fresh one.
+fn cache_of<C: Default + Send + 'static>(slot: &mut Box<dyn Any + Send>) -> &mut C {
+    if !slot.is::<C>() {
+        *slot = Box::new(C::default());
+    }
+    match slot.downcast_mut::<C>() {
+        Some(c) => c,
+        None => unreachable!("the slot was just set to a C"),
+    }
 }
 
 /// What one training step did.
@@ -147,21 +173,26 @@ impl HigTrainer {
     ///
     /// A non-finite loss returns [`Error::Diverged`] before the update, so `net` keeps the
     /// parameters of the last good step.
-    pub fn step(&mut self, net: &mut Mlp, physics: &dyn Physics, batch: Batch<'_>) -> Result<StepInfo> {
+    pub fn step<M: JacobianModel + ?Sized>(
+        &mut self,
+        net: &mut M,
+        physics: &dyn Physics,
+        batch: Batch<'_>,
+    ) -> Result<StepInfo> {
         let ws = &mut self.ws;
-        forward_with_physics_jacobian(net, physics, batch, &mut ws.cache, &mut ws.y, &mut ws.jp)?;
+        let cache = cache_of::<M::Cache>(&mut ws.cache);
+        forward_with_physics_jacobian(&*net, physics, batch, cache, &mut ws.y, &mut ws.jp)?;
         let loss = loss_and_gradient(self.loss, &ws.y, batch.targets, batch.len, physics.output_dim(), &mut ws.g)?;
         if !loss.is_finite() {
             return Err(Error::Diverged { step: self.step, loss, last_good: self.step.saturating_sub(1) });
         }
         let (rows, p) = (batch.len * physics.output_dim(), net.n_params());
         self.jac.resize(rows * p, 0.0);
-        net.jacobian_rows(&ws.cache, &ws.jp, physics.output_dim(), &mut self.jac)?;
+        net.jacobian_rows(cache, &ws.jp, physics.output_dim(), &mut self.jac)?;
         self.dtheta.resize(p, 0.0);
         let j = MatRef::from_row_major_slice(&self.jac, rows, p);
         let info = self.solver.solve(&self.cfg, j, &ws.g, &mut self.dtheta)?;
-        let eta = self.cfg.eta;
-        net.params_mut().iter_mut().zip(&self.dtheta).for_each(|(t, d)| *t -= eta * d);
+        net.apply_update(self.cfg.eta, &self.dtheta)?;
         let out = StepInfo { step: self.step, loss, solve: Some(info) };
         self.step += 1;
         Ok(out)
@@ -189,8 +220,10 @@ impl std::fmt::Debug for AdamTrainer {
 
 impl AdamTrainer {
     /// Adam with learning rate `lr` (other settings at their defaults) for `net`'s parameters.
-    pub fn new(net: &Mlp, lr: f64) -> Result<Self> {
-        let theta = Var::from_slice(net.params(), net.n_params(), &Device::Cpu)?;
+    pub fn new<M: JacobianModel + ?Sized>(net: &M, lr: f64) -> Result<Self> {
+        let mut params = vec![0.0; net.n_params()];
+        net.read_params(&mut params)?;
+        let theta = Var::from_slice(&params, params.len(), &Device::Cpu)?;
         let opt = OptimizerConfig::Adam(AdamConfig { lr, ..Default::default() }).build(vec![theta.clone()])?;
         Ok(Self {
             opt,
@@ -216,14 +249,20 @@ impl AdamTrainer {
 
     /// One Adam step on `batch`. The network's parameters must not be changed elsewhere
     /// between steps (Adam keeps its own copy and its moments).
-    pub fn step(&mut self, net: &mut Mlp, physics: &dyn Physics, batch: Batch<'_>) -> Result<StepInfo> {
+    pub fn step<M: JacobianModel + ?Sized>(
+        &mut self,
+        net: &mut M,
+        physics: &dyn Physics,
+        batch: Batch<'_>,
+    ) -> Result<StepInfo> {
         let ws = &mut self.ws;
+        let cache = cache_of::<M::Cache>(&mut ws.cache);
         let (b, nu, ny, nx) = (batch.len, physics.control_dim(), physics.output_dim(), physics.context_dim());
         check_len("network output width vs physics control length", nu, net.out_dim())?;
         check_len("batch targets length", b * ny, batch.targets.len())?;
         check_len("batch contexts length", b * nx, batch.contexts.len())?;
-        net.forward(batch.inputs, b, &mut ws.cache)?;
-        let u = ws.cache.output();
+        net.forward(batch.inputs, b, cache)?;
+        let u = net.output(cache);
         ws.y.resize(b * ny, 0.0);
         ws.y.par_chunks_mut(ny).enumerate().try_for_each(|(s, ys)| {
             physics.forward(&batch.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], ys)
@@ -239,13 +278,13 @@ impl AdamTrainer {
             physics.vjp(&batch.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], &g[s * ny..(s + 1) * ny], c)
         })?;
         self.grad.resize(net.n_params(), 0.0);
-        net.gradient(&ws.cache, &self.cot, &mut self.grad)?;
+        net.gradient(cache, &self.cot, &mut self.grad)?;
         crate::error::check_finite("loss gradient", &self.grad, 1)?;
         // Feed the gradient to candle's optimiser: d/dtheta (theta . G) = G.
         let g = Tensor::from_slice(&self.grad, self.grad.len(), &Device::Cpu)?;
         let surrogate = (self.theta.as_tensor() * g)?.sum_all()?;
         self.opt.backward_step(&surrogate)?;
-        net.set_params(&self.theta.as_tensor().to_vec1::<f64>()?)?;
+        net.write_params(&self.theta.as_tensor().to_vec1::<f64>()?)?;
         let out = StepInfo { step: self.step, loss, solve: None };
         self.step += 1;
         Ok(out)
@@ -253,19 +292,24 @@ impl AdamTrainer {
 }
 
 /// Mean loss per sample `sum_s ||P(x_s; f(i_s)) - y*_s||^2 / n` over a data set.
-pub fn evaluate(net: &Mlp, physics: &dyn Physics, data: &Dataset) -> Result<f64> {
+pub fn evaluate<M: JacobianModel + ?Sized>(net: &M, physics: &dyn Physics, data: &Dataset) -> Result<f64> {
     evaluate_with_loss(net, physics, Loss::SquaredError, data)
 }
 
 /// Mean loss per sample `sum_s l(P(x_s; f(i_s)), y*_s) / n` over a data set.
-pub fn evaluate_with_loss(net: &Mlp, physics: &dyn Physics, loss: Loss, data: &Dataset) -> Result<f64> {
+pub fn evaluate_with_loss<M: JacobianModel + ?Sized>(
+    net: &M,
+    physics: &dyn Physics,
+    loss: Loss,
+    data: &Dataset,
+) -> Result<f64> {
     loss.check_dim(physics.output_dim())?;
-    let mut cache = MlpCache::default();
+    let mut cache = M::Cache::default();
     let all = data.all();
     net.forward(all.inputs, all.len, &mut cache)?;
     let (nu, ny, nx) = (physics.control_dim(), physics.output_dim(), physics.context_dim());
     check_len("network output width vs physics control length", nu, net.out_dim())?;
-    let u = cache.output();
+    let u = net.output(&cache);
     let total: f64 = (0..all.len)
         .into_par_iter()
         .map(|s| -> Result<f64> {
@@ -344,8 +388,8 @@ impl Curve {
 /// A non-finite training loss stops the run: the curve is returned with
 /// [`Curve::diverged_at`] set and `net` keeps the parameters of the last good step. A
 /// non-finite evaluation loss (after an update) also stops it; that point is not recorded.
-pub fn run_curve(
-    net: &mut Mlp,
+pub fn run_curve<M: JacobianModel + ?Sized>(
+    net: &mut M,
     physics: &dyn Physics,
     method: Method,
     train: &Dataset,
@@ -358,8 +402,8 @@ pub fn run_curve(
 }
 
 /// [`run_curve`] minimising (and evaluating) the per-sample `loss`.
-pub fn run_curve_with_loss(
-    net: &mut Mlp,
+pub fn run_curve_with_loss<M: JacobianModel + ?Sized>(
+    net: &mut M,
     physics: &dyn Physics,
     loss: Loss,
     method: Method,
@@ -375,13 +419,13 @@ pub fn run_curve_with_loss(
     let mut curve = Curve::default();
     curve.seconds.push(0.0);
     curve.steps.push(0);
-    curve.loss.push(evaluate_with_loss(net, physics, loss, eval)?);
+    curve.loss.push(evaluate_with_loss(&*net, physics, loss, eval)?);
     let mut hig = match method {
         Method::Hig(cfg) => Some(HigTrainer::new(cfg)?.with_loss(loss)),
         Method::Adam { .. } => None,
     };
     let mut adam = match method {
-        Method::Adam { lr } => Some(AdamTrainer::new(net, lr)?.with_loss(loss)),
+        Method::Adam { lr } => Some(AdamTrainer::new(&*net, lr)?.with_loss(loss)),
         Method::Hig(_) => None,
     };
     let n_batches = train.len / batch;
@@ -408,7 +452,7 @@ pub fn run_curve_with_loss(
         elapsed += dt;
         step += 1;
         if step % eval_every.max(1) == 0 || elapsed >= budget.seconds || step >= budget.max_steps {
-            let value = evaluate_with_loss(net, physics, loss, eval)?;
+            let value = evaluate_with_loss(&*net, physics, loss, eval)?;
             if !value.is_finite() {
                 curve.diverged_at = Some(step);
                 return Ok(curve);
