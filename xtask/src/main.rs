@@ -189,8 +189,9 @@ Particles (`sim particles`): <out>/<scene>_seed<k>.npz with `positions` [T, N, D
 scene or --precision f32), and `time` [T] (always f64); <scene>_seed<k>.png (last frame) and
 .gif beside it. --init FILE.npz reads `positions` [N, D] or [T, N, D] (last frame), optional
 `velocities`, `mass`, `density` (the fluid; walls come from the scene; f32 or f64). A
-trajectory is a valid --init file; a restart in the trajectory's precision starts from exactly
-its last frame.
+trajectory is a valid --init file (except for shock tubes, whose initial state is the Riemann
+problem itself: they refuse --init); a restart in the trajectory's precision starts from
+exactly its last frame.
 
 Examples:
   cargo xtask sim grid taylor_green --res 128
