@@ -1,13 +1,16 @@
 //! SMDP toy problem: simulator statistics, analytic formulas, samplers and short training.
 //! The full acceptance runs (training to acceptance) are `#[ignore]`d and print their numbers.
 
-use pbdl_diffusion::smdp::analytic::{AffineMixture, QUADRATIC_POSTERIOR_DT002};
+use pbdl_diffusion::smdp::analytic::{AffineMixture, QUADRATIC_POSTERIOR_DT002, QUADRATIC_POSTERIOR_DT002_4M};
 use pbdl_diffusion::smdp::loss::{multi_step_loss, LossWorkspace};
 use pbdl_diffusion::smdp::mlp::ScoreMlp;
 use pbdl_diffusion::smdp::physics::ToyDrift;
 use pbdl_diffusion::smdp::sampler::{hit_rates, posterior_plus, AnalyticScore, HitReport};
 use pbdl_diffusion::smdp::sde::{mean_std, two_point_starts, ToySde};
-use pbdl_diffusion::smdp::toy::{affine_score_error, train_toy, TimeSampling, ToyLoss, ToyStage, ToyTrainConfig};
+use pbdl_diffusion::smdp::toy::{
+    affine_one_step_target, affine_score_error, score_error_against, train_toy, TimeSampling, ToyLoss, ToyStage,
+    ToyTrainConfig,
+};
 use std::time::Instant;
 
 /// The digest's anchor: 400k paths give mean 0.0036 and std 0.0351 at dt = 0.02.
@@ -104,6 +107,7 @@ fn short_training_reduces_both_losses() {
         let window = match loss {
             ToyLoss::OneStep => 1,
             ToyLoss::MultiStep(w) => w,
+            ToyLoss::Strided { stride, .. } => stride,
         };
         let mut net = ScoreMlp::paper(0);
         let before = held_out_loss(&sde, &net, window, 40_000);
@@ -132,34 +136,58 @@ fn short_training_reduces_both_losses() {
     }
 }
 
-/// The official affine config's three learning rates (1e-3, 1e-4, 1e-5), shortened to 50k
-/// updates each (the official runs are epochs of ~5000 updates).
+/// Acceptance (i): in the affine case the learned score is within 10% (relative L2, pooled over
+/// the region p_t > 1% of its maximum) of the analytic score for t in [0.5, 10].
+///
+/// Recipe: the official `affine_reg_mlp_big` config's stages (regularised 1-step loss; every 5th
+/// point at lr 1e-3, then every point at 1e-4, then 1e-5), shortened to 100k + 150k + 50k
+/// updates (the official run is 250k + 1.25M + 3.75M), on data of our dt = 0.02 simulator and
+/// the official time grid.
+///
+/// Measured (209 s): pooled 0.0714 against the continuous law (pass), 0.0808 against the exact
+/// law of the Euler chain that generated the data, 0.0748 against the exact minimiser of the
+/// loss on that chain ([`affine_one_step_target`], which is itself 1.5% from g^2 grad log p).
+/// The error sits at t = 2.5..4 (0.10..0.12), where the two modes separate and the score has a
+/// steep tanh step between them; by density band: 0.081 where p_t is 1-10% of its maximum,
+/// 0.045 at 10-50%, 0.076 at 50-100%. A second seed (1; the `smdp_toy` example) gives 0.0929
+/// (t = 4: 0.213, t = 10: 0.140): a pass with little margin. The first attempt (1-step loss
+/// only, 50k updates per learning rate, no stride-5 stage) measured 0.108-0.110.
+#[test]
+#[ignore = "acceptance run: 300k regularised 1-step updates; 3.5 minutes (measured 0.071, passes; seed 1: 0.093)"]
+fn affine_learned_score_matches_the_analytic_score() {
+    let sde = ToySde::paper_affine();
+    let mut net = ScoreMlp::paper(0);
+    let mut cfg = ToyTrainConfig { log_every: 50_000, sim_substeps: 1, ..ToyTrainConfig::official(100_000, 150_000) };
+    cfg.stages.push(ToyStage { loss: ToyLoss::Strided { stride: 1, bidirectional: false }, lr: 1e-5, updates: 50_000 });
+    for st in &mut cfg.stages {
+        if let ToyLoss::Strided { stride, .. } = st.loss {
+            st.loss = ToyLoss::Strided { stride, bidirectional: false };
+        }
+    }
+    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
+    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    let ts: Vec<f64> = (0..20).map(|i| 0.5 + 9.5 * i as f64 / 19.0).collect();
+    let euler = AffineMixture::euler(0.5, 0.04, 0.02);
+    let cont = affine_score_error(&net, &AffineMixture::continuous(0.5, 0.04), &ts, 400);
+    let eul = affine_score_error(&net, &euler, &ts, 400);
+    let tgt = score_error_against(&net, &euler, &ts, 400, |x, t| affine_one_step_target(&euler, 0.02, 1, x, t));
+    for ((t, e), (_, e2)) in cont.per_t.iter().zip(&eul.per_t) {
+        println!("t {t:5.2}: rel. L2 error vs continuous {e:.4}, vs Euler-chain law {e2:.4}");
+    }
+    println!("by density band (vs continuous): {:?}", cont.by_band);
+    println!(
+        "pooled: vs continuous {:.4}, vs Euler-chain law {:.4}, vs the loss minimiser {:.4}",
+        cont.pooled, eul.pooled, tgt.pooled
+    );
+    assert!(cont.pooled < 0.10, "pooled relative error {}", cont.pooled);
+}
+
+/// The first attempt's config: the three learning rates of the official affine config with the
+/// 1-step loss only, 50k updates each (kept for the log-uniform experiment below).
 fn accept_config() -> ToyTrainConfig {
     let mut cfg = ToyTrainConfig { log_every: 10_000, ..ToyTrainConfig::one_step(50_000, 50_000) };
     cfg.stages.push(ToyStage { loss: ToyLoss::OneStep, lr: 1e-5, updates: 50_000 });
     cfg
-}
-
-/// Acceptance (i): in the affine case the learned score is within 10% (relative L2, pooled over
-/// the region p_t > 1% of its maximum) of the analytic score for t in [0.5, 10].
-///
-/// Measured: 0.108 after 100k updates (1e-3, 1e-4), 0.110 after 150k (1e-3, 1e-4, 1e-5): a
-/// miss; the largest errors are at t = 4 (0.22), where the two modes separate, and t = 0.5.
-#[test]
-#[ignore = "acceptance run: trains the toy score for 150k updates; 8 minutes on a loaded 2-core machine"]
-fn affine_learned_score_matches_the_analytic_score() {
-    let sde = ToySde::paper_affine();
-    let mut net = ScoreMlp::paper(0);
-    let rep = train_toy(&sde, &mut net, &accept_config()).unwrap();
-    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
-    let ts: Vec<f64> = (0..20).map(|i| 0.5 + 9.5 * i as f64 / 19.0).collect();
-    let cont = affine_score_error(&net, &AffineMixture::continuous(0.5, 0.04), &ts, 400);
-    let eul = affine_score_error(&net, &AffineMixture::euler(0.5, 0.04, 0.02), &ts, 400);
-    for ((t, e), (_, e2)) in cont.per_t.iter().zip(&eul.per_t) {
-        println!("t {t:5.2}: rel. L2 error vs continuous {e:.4}, vs Euler-chain law {e2:.4}");
-    }
-    println!("pooled: vs continuous {:.4}, vs Euler-chain law {:.4}", cont.pooled, eul.pooled);
-    assert!(cont.pooled < 0.10, "pooled relative error {}", cont.pooled);
 }
 
 /// Experiment: the affine case trained like the quadratic acceptance model (log-uniform times);
@@ -180,24 +208,55 @@ fn affine_with_log_uniform_times() {
     println!("pooled vs continuous {:.4}", cont.pooled);
 }
 
+/// Prints the reverse-SDE posterior against both reference tables and the hit rates; returns
+/// the worst posterior error against the 4M-path table and the hit rates.
 fn report_quadratic(name: &str, sde: &ToySde, net: &ScoreMlp) -> (f64, HitReport) {
     let t0 = Instant::now();
     let ys: Vec<f64> = QUADRATIC_POSTERIOR_DT002.iter().map(|p| p.0).collect();
     let post = posterior_plus(sde, net, &ys, 2000, 5).unwrap();
     let hits = hit_rates(sde, net, 1000, 0.01, 6).unwrap();
-    let mut worst: f64 = 0.0;
-    for ((y, reference), p) in QUADRATIC_POSTERIOR_DT002.iter().zip(&post) {
-        println!("{name}: y {y:+.3}: P(+1|y) reverse SDE {p:.3}, digest (dt = 0.02) {reference:.2}");
-        worst = worst.max((p - reference).abs());
+    let (mut worst, mut worst_digest): (f64, f64) = (0.0, 0.0);
+    for (((y, digest), (_, mc, se)), p) in
+        QUADRATIC_POSTERIOR_DT002.iter().zip(&QUADRATIC_POSTERIOR_DT002_4M).zip(&post)
+    {
+        println!("{name}: y {y:+.3}: P(+1|y) reverse SDE {p:.3}, 4M-path MC {mc:.3} +- {se:.3}, digest {digest:.2}");
+        worst = worst.max((p - mc).abs());
+        worst_digest = worst_digest.max((p - digest).abs());
     }
+    println!("{name}: worst posterior error vs 4M MC {worst:.3}, vs digest table {worst_digest:.3}");
     println!("{name}: {hits:?}; evaluated in {:.1} s", t0.elapsed().as_secs_f64());
     (worst, hits)
 }
 
+/// The 4M-path posterior table (computed with numpy) reproduced by this crate's simulator:
+/// every bin within 4 standard errors (of both estimates combined).
+#[test]
+#[ignore = "reference check: 4M quadratic paths; 18 s (measured: all bins within 2.3 standard errors)"]
+fn posterior_reference_table_is_reproduced_by_our_simulator() {
+    let sde = ToySde::paper_quadratic();
+    let n = 4_000_000;
+    let x0 = two_point_starts(n);
+    let end = sde.endpoints(&x0, 2024).unwrap();
+    for &(y, p_ref, se_ref) in &QUADRATIC_POSTERIOR_DT002_4M {
+        let (mut count, mut plus) = (0usize, 0usize);
+        for (e, s) in end.iter().zip(&x0) {
+            if (e - y).abs() < 0.005 {
+                count += 1;
+                plus += usize::from(*s > 0.0);
+            }
+        }
+        let p = plus as f64 / count as f64;
+        let se = (p * (1.0 - p) / count as f64).sqrt();
+        println!("y {y:+.3}: {p:.4} +- {se:.4} ({count} paths) vs {p_ref:.4} +- {se_ref:.4}");
+        assert!((p - p_ref).abs() < 4.0 * (se * se + se_ref * se_ref).sqrt(), "y {y}: {p} vs {p_ref}");
+    }
+}
+
 /// Acceptance (ii) and (iii) on the quadratic toy. Two models:
 /// * `L`: the 1-step loss with its regulariser (an exact score) and log-uniform training times;
-///   judged on the reverse-SDE posterior (within 0.05 per bin of the digest's dt = 0.02 Monte
-///   Carlo table, 2000 samples per bin) and on the SDE hit rate (>= 95% within 1% of +-1).
+///   judged on the reverse-SDE posterior (within 0.05 per bin of the dt = 0.02 Monte Carlo
+///   table; the numbers below were measured against the digest's table, the assertion now uses
+///   the 4M-path one, 2000 samples per bin) and on the SDE hit rate (>= 95% within 1% of +-1).
 /// * `M`: `L` fine-tuned with the multi-step loss over growing windows 4, 6, ..., 12; judged on
 ///   the ODE hit rate (>= 95%) and on the ODE keeping the sign of x_T (>= 99%).
 ///
@@ -241,4 +300,108 @@ fn quadratic_with_uniform_times() {
     println!("U trained in {:.1} s", rep.seconds);
     let (worst, hits) = report_quadratic("U", &sde, &net);
     println!("U: worst posterior error {worst:.3}; {hits:?}");
+}
+
+/// Acceptance (ii)-(iv) with the official notebook's recipe (`ToyTrainConfig::official`): data
+/// integrated at dt/2 and stored every dt = 0.02, the 1-step loss trained in both time
+/// directions, 250k updates on every 5th point (step 0.1, lr 1e-3) then 250k on every point
+/// (lr 1e-4), Adam (0.9, 0.99), batch 256, 2500 paths. The notebook samples with step 0.01
+/// (half the data step); the criteria are judged there and the data step 0.02 is printed too.
+///
+/// Measured (1125 s of training under load; final loss 3.8e-5 per update, i.e. 0.019 summed
+/// over the 500 windows of an official epoch, against the notebook's 0.016): forward x_T mean
+/// 0.00343, std 0.03518 (pass); step 0.01: posterior within 0.059 of the 4M-path table (0.060
+/// of the digest's; every bin is low, P(+1 | y = -0.025) = 0.402 vs 0.4605), ODE hits 2.4%,
+/// SDE hits 43.1%, ODE keeps the sign for 89.5%; step 0.02: 0.057 (0.077), 0.5%, 58.5%, 96.8%;
+/// steps 0.005 / 0.0025 (same model): ODE hits 64.7% / 61.8%, SDE hits 10.4% / 3.5%. Fails (ii)
+/// and (iii).
+#[test]
+#[ignore = "acceptance run, FAILS (ii) and (iii): 500k bidirectional updates, 19 minutes under load; posterior off by 0.059, ODE hits 2.4%, SDE hits 43% (measured)"]
+fn quadratic_official_recipe() {
+    let sde = ToySde::paper_quadratic();
+    let (m, s) = mean_std(&sde.endpoints(&vec![1.0; 200_000], 11).unwrap());
+    println!("forward: x_T from +1 mean {m:.5}, std {s:.5} (digest 0.0036 +- 0.0005, 0.035 +- 0.001)");
+    let mut net = ScoreMlp::paper(0);
+    let cfg = ToyTrainConfig { log_every: 50_000, ..ToyTrainConfig::official(250_000, 250_000) };
+    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
+    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    let (worst02, hits02) = report_quadratic("data step 0.02", &sde, &net);
+    let (worst, hits) = report_quadratic("notebook step 0.01", &ToySde { dt: 0.01, ..sde }, &net);
+    println!("worst posterior error: step 0.02 {worst02:.3}, step 0.01 {worst:.3}; hits {hits02:?} / {hits:?}");
+    assert!((m - 0.0036).abs() < 0.0005 && (s - 0.035).abs() < 0.001, "forward statistics {m} {s}");
+    assert!(worst <= 0.05, "posterior off by {worst}");
+    assert!(hits.ode_hits >= 0.95 && hits.sde_hits >= 0.95, "{hits:?}");
+    assert!(hits.ode_sign_kept >= 0.99, "{hits:?}");
+}
+
+/// Acceptance (ii)-(iii) with the official regularised config (`smdp_reg_mlp_paper`: 1-step
+/// loss with the (1/4) h^2 ||s||^2 term, every 5th point at lr 1e-3, then every point at lr
+/// 1e-4, 250k + 250k updates) on data from our dt = 0.02 simulator (the chain the digest's
+/// posterior table describes), log-uniform training times; SDE sampled at the data step 0.02,
+/// ODE at the notebook's 0.01.
+///
+/// The hypothesis this tested: on an Euler chain with step h the loss's minimiser is
+/// `s = g^2 grad log p + h P'(x) P(x) + O(h^2)`, whose second term is the correction that the
+/// Euler inverse step `x - h P(x)` needs (`h^2 P'P` per step, 0.04 at x = 1 for h = 0.02); the
+/// SDE (weight 1) gets it in full at step h, the ODE (weight 1/2) at step h/2. Measured (415 s):
+/// SDE hits 100%, posterior within 0.038 of the 4M-path table (pass; y = +0.095 gives 0.556 vs
+/// 0.594 +- 0.007; against the digest's 0.62 it is 0.064), but ODE hits 0.4% (sign kept 91.2%),
+/// so (iii) fails. The hypothesis is
+/// wrong for the ODE: at step h/2 it inverts an Euler-(h/2) flow, while the data follow the
+/// Euler-h chain, which moves faster near x = 1 (one step from 1 reaches 0.860, the exact flow
+/// 0.877), so the ODE ends a few percent short of +-1. A score that serves the ODE at the data
+/// step must carry twice this correction (what the multi-step loss learns), and then the SDE
+/// over-corrects: on this toy one network cannot give both samplers 95% hits at one step.
+#[test]
+#[ignore = "acceptance run, FAILS (iii) for the ODE: 500k regularised 1-step updates, 7 minutes; posterior within 0.038 and SDE hits 100% (pass), ODE hits 0.4% (measured)"]
+fn quadratic_reg_recipe_with_consistent_sampler_steps() {
+    let sde = ToySde::paper_quadratic();
+    let mut net = ScoreMlp::paper(0);
+    let mut cfg = ToyTrainConfig {
+        log_every: 50_000,
+        sim_substeps: 1,
+        time_sampling: TimeSampling::LogUniform,
+        ..ToyTrainConfig::official(250_000, 250_000)
+    };
+    for st in &mut cfg.stages {
+        if let ToyLoss::Strided { stride, .. } = st.loss {
+            st.loss = ToyLoss::Strided { stride, bidirectional: false };
+        }
+    }
+    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
+    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    let (worst, sde_hits) = report_quadratic("SDE step 0.02", &sde, &net);
+    let (_, ode_hits) = report_quadratic("ODE step 0.01", &ToySde { dt: 0.01, ..sde }, &net);
+    println!("posterior worst {worst:.3}; SDE hits (step 0.02) {sde_hits:?}; ODE hits (step 0.01) {ode_hits:?}");
+    assert!(worst <= 0.05, "posterior off by {worst}");
+    assert!(sde_hits.sde_hits >= 0.95, "{sde_hits:?}");
+    assert!(ode_hits.ode_hits >= 0.95 && ode_hits.ode_sign_kept >= 0.99, "{ode_hits:?}");
+}
+
+/// The brief's full recipe: the official 1-step stages (as in [`quadratic_official_recipe`]),
+/// then the multi-step loss over sliding windows 4, 6, ..., 40 (19 windows, 1000 updates each at
+/// lr 1e-4; the notebook's function defaults are 4 + 2 per stage, 18 increases, 20 epochs per
+/// window, i.e. about 100k updates per window, which is out of reach here).
+///
+/// Measured (1125 s + 493 s): step 0.02: ODE hits 100% but ODE keeps the sign of x_T for only
+/// 91.4%, SDE hits 0%, and the posterior is flat (0.556..0.587 over y = -0.095..+0.095, worst
+/// error 0.16 against the 4M-path table, 0.176 against the digest's); step 0.01: ODE hits 0%,
+/// SDE hits 0%. The multi-step loss calibrates the score for
+/// ODE steps of the data step and destroys the posterior information at large t.
+#[test]
+#[ignore = "acceptance run, FAILS: 500k 1-step + 19k multi-step updates, 27 minutes under load; ODE hits 100% but SDE hits 0% and posterior off by 0.18 (measured)"]
+fn quadratic_official_recipe_then_sliding_windows() {
+    let sde = ToySde::paper_quadratic();
+    let mut net = ScoreMlp::paper(0);
+    let mut cfg = ToyTrainConfig { log_every: 50_000, ..ToyTrainConfig::official(250_000, 250_000) };
+    for i in 0..19 {
+        cfg.stages.push(ToyStage { loss: ToyLoss::MultiStep(4 + 2 * i), lr: 1e-4, updates: 1000 });
+    }
+    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
+    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    let (worst, hits) = report_quadratic("step 0.02", &sde, &net);
+    let (_, hits01) = report_quadratic("step 0.01", &ToySde { dt: 0.01, ..sde }, &net);
+    println!("posterior worst {worst:.3}; hits step 0.02 {hits:?}; step 0.01 {hits01:?}");
+    assert!(worst <= 0.05, "posterior off by {worst}");
+    assert!(hits.ode_hits >= 0.95 && hits.sde_hits >= 0.95 && hits.ode_sign_kept >= 0.99, "{hits:?}");
 }
