@@ -44,6 +44,7 @@ fn pair(name: &str, default: (usize, usize)) -> (usize, usize) {
 }
 
 fn main() -> pbdl_diffusion::Result<()> {
+    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
     let affine = arg("--drift").as_deref() == Some("affine");
     let sde = if affine { ToySde::paper_affine() } else { ToySde::paper_quadratic() };
     let seed: u64 = arg("--seed").and_then(|v| v.parse().ok()).unwrap_or(0);

@@ -1,14 +1,18 @@
-//! Trains a metric from scratch on advection-diffusion + Burgers sequences and scores it with
-//! the LSiM protocol (Spearman per data set) against L2, SSIM and, when the weights exist, the
-//! published LSiM; smoke and shapes are kinds the metric never saw.
+//! Trains a metric from scratch on advection-diffusion + Burgers sequences (or the kinds of
+//! `--train-kinds`) and scores it with the LSiM protocol (Spearman per data set) against L2,
+//! SSIM and, when the weights exist, the published LSiM; by default smoke and shapes are kinds
+//! the metric never saw.
 //!
 //! ```text
 //! cargo run -p pbdl-metrics --example train_metric -- [--train 60] [--test 30] [--epochs 40]
 //!     [--width 0.5] [--res 64] [--lr 1e-3] [--gt linear|fit2] [--seed 0] [--no-lsim]
 //!     [--val 30] [--weights-only] [--recalibrate] [--dropout 0] [--scale 1]
-//!     [--second-pool | --no-second-pool]
-//!     [--out target/metric-training] [--fit2-stats] [--eval MODEL [--test-seed S]]
+//!     [--second-pool | --no-second-pool] [--train-kinds adv,bur,smo] [--pair-groups 1]
+//!     [--run-seed S]
+//!     [--out target/metric-training] [--fit2-stats] [--eval MODEL [--test-seed S] [--split val]]
 //! ```
+//! `--split val` with `--eval` scores the cached validation sets of all four kinds of seed `S`
+//! (the experiment's are seed `seed + 500`) instead of test sets.
 //! `--test 0` trains and scores the validation sets only (Adv and Bur of seed `seed + 500`),
 //! for choosing settings without the test sets. Data are cached as `.npz` under `--out` (delete
 //! them to regenerate); the trained model is written there as a pbdl checkpoint (`metric`, and
@@ -24,14 +28,15 @@ use pbdl_metrics::{Lsim, LsimSize};
 
 /// `--eval MODEL [--test-seed S]`: scores a saved model on freshly generated (cached) test sets
 /// of seed `S`, next to L2, SSIM and (unless `--no-lsim`) the published LSiM, without training.
-fn eval_only(cfg: &ExperimentConfig, model: &str, seed: u64) -> Result<(), Box<dyn std::error::Error>> {
+fn eval_only(cfg: &ExperimentConfig, model: &str, seed: u64, split: &str) -> Result<(), Box<dyn std::error::Error>> {
     let net = MetricNet::load(model)?;
     let dir = cfg.out_dir.clone().ok_or("no --out")?;
+    let count = if split == "val" { cfg.val_per_kind } else { cfg.test_per_kind };
     let mut sets = Vec::new();
     for kind in Kind::ALL {
-        let path = dir.join(cache_name(kind, "test", cfg.test_per_kind, cfg.resolution, seed));
+        let path = dir.join(cache_name(kind, split, count, cfg.resolution, seed));
         let dc = DataConfig { resolution: cfg.resolution, seed };
-        sets.push((kind.short().to_string(), cached(path, || generate(kind, cfg.test_per_kind, &dc))?));
+        sets.push((kind.short().to_string(), cached(path, || generate(kind, count, &dc))?));
     }
     let lsim = if cfg.published_lsim {
         pbdl_metrics::weights::weights_dir().and_then(|d| Lsim::load(d.join(pbdl_metrics::weights::LSIM_FILE)).ok())
@@ -44,7 +49,7 @@ fn eval_only(cfg: &ExperimentConfig, model: &str, seed: u64) -> Result<(), Box<d
     }
     metrics.push(Scored::Trained(&net));
     let rows = evaluate(&metrics, &sets)?;
-    println!("test seed {seed}, model {model}\n\n{}", markdown_table(&rows));
+    println!("{split} seed {seed}, model {model}\n\n{}", markdown_table(&rows));
     Ok(())
 }
 
@@ -74,9 +79,15 @@ fn arg<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> T {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
     let args: Vec<String> = std::env::args().collect();
     let d = ExperimentConfig::default();
+    let train_kinds = match args.iter().position(|a| a == "--train-kinds").and_then(|i| args.get(i + 1)) {
+        Some(list) => list.split(',').map(Kind::parse).collect::<Result<Vec<_>, _>>()?,
+        None => d.train_kinds.clone(),
+    };
     let cfg = ExperimentConfig {
+        train_kinds,
         train_per_kind: arg(&args, "--train", d.train_per_kind),
         test_per_kind: arg(&args, "--test", d.test_per_kind),
         val_per_kind: arg(&args, "--val", d.val_per_kind),
@@ -89,11 +100,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         } else {
             !args.iter().any(|a| a == "--no-second-pool") && d.second_pool
         },
+        pair_groups: arg(&args, "--pair-groups", d.pair_groups),
         epochs: arg(&args, "--epochs", d.epochs),
         width: arg(&args, "--width", d.width),
         resolution: arg(&args, "--res", d.resolution),
         lr: arg(&args, "--lr", d.lr),
         seed: arg(&args, "--seed", d.seed),
+        run_seed: args.iter().position(|a| a == "--run-seed").and_then(|i| args.get(i + 1)?.parse().ok()),
         ground_truth: match arg(&args, "--gt", "linear".to_string()).as_str() {
             "fit2" => GroundTruth::Fit2,
             _ => GroundTruth::Linear,
@@ -107,13 +120,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return fit2_stats(&cfg);
     }
     if let Some(model) = args.iter().position(|a| a == "--eval").and_then(|i| args.get(i + 1)) {
-        return eval_only(&cfg, model, arg(&args, "--test-seed", cfg.seed + 1000));
+        let split = arg(&args, "--split", "test".to_string());
+        let seed = arg(&args, "--test-seed", cfg.seed + if split == "val" { 500 } else { 1000 });
+        return eval_only(&cfg, model, seed, &split);
     }
     let r = run_experiment(&cfg)?;
     let steps = cfg.epochs * r.train_sequences;
     println!(
-        "data: {} training sequences, 4 x {} test sequences, {:.1} s",
-        r.train_sequences, cfg.test_per_kind, r.data_seconds
+        "data: {} training sequences ({:?}), 4 x {} test sequences, {:.1} s",
+        r.train_sequences, cfg.train_kinds, cfg.test_per_kind, r.data_seconds
     );
     println!("model: LSiM base network, width x{}, {} parameters", cfg.width, r.parameters);
     println!(

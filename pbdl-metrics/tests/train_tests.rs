@@ -7,7 +7,9 @@ use pbdl_core::{check_grad, GradCheckOptions};
 use pbdl_metrics::classic::spearman_values;
 use pbdl_metrics::train::data::{generate, load_sequences, save_sequences, spectral_noise, DataConfig, Kind, FRAMES};
 use pbdl_metrics::train::eval::{normalise_01, reference_distances, spearman_protocol, Scored};
-use pbdl_metrics::train::fit::{augment, random_crop, sequence_loss, train, TrainConfig};
+use pbdl_metrics::train::fit::{
+    augment, grouped_distances, random_crop, random_pair_groups, sequence_loss, train, PairGroup, TrainConfig,
+};
 use pbdl_metrics::train::loss::{
     fit2_coefficient, fit_log_coefficient, ground_truth, log_curve, metric_loss, pairs, pearson_1d, GroundTruth,
     LossConfig, FIT_RANGE,
@@ -472,9 +474,85 @@ fn weights_only_training_keeps_the_convs_and_recalibration_follows_them() {
     let mut recal = tiny_net(4);
     train(&mut recal, &seqs, &TrainConfig { recalibrate: true, ..base }).unwrap();
     let mean0 = |n: &MetricNet| n.stats().unwrap()[0].mean.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-    let mut check = recal.clone();
+    let mut check = recal.deep_copy().unwrap();
     let inputs: Vec<Tensor> = seqs.iter().map(|s| to_byte_range(&s.frames).unwrap()).collect();
     check.calibrate(inputs.iter()).unwrap();
     assert_eq!(mean0(&recal), mean0(&check));
     assert_ne!(mean0(&recal), mean0(&frozen));
+}
+
+#[test]
+fn a_deep_copy_trains_without_changing_the_original() {
+    let seqs = generate(Kind::Shapes, 2, &DataConfig { resolution: 48, seed: 5 }).unwrap();
+    let values = |net: &MetricNet| -> Vec<Vec<f32>> {
+        net.vars().iter().map(|v| v.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap()).collect()
+    };
+    let cfg = TrainConfig {
+        epochs: 1,
+        adam: pbdl_core::train::AdamConfig { lr: 1e-2, ..Default::default() },
+        augment: false,
+        crop: 1.0,
+        dropout: 0.0,
+        ..Default::default()
+    };
+    let mut original = tiny_net(6);
+    let inputs: Vec<Tensor> = seqs.iter().map(|s| to_byte_range(&s.frames).unwrap()).collect();
+    original.calibrate(inputs.iter()).unwrap();
+    let before = values(&original);
+    let mut copy = original.deep_copy().unwrap();
+    assert!(values(&copy) == before, "a copy starts with the same weights");
+    train(&mut copy, &seqs, &cfg).unwrap();
+    assert!(values(&copy) != before, "training must move the copy's weights");
+    assert!(values(&original) == before, "training the copy must leave the original unchanged");
+    // The other way round, by setting a variable of the original directly.
+    let w = &original.vars()[0];
+    w.set(&(w.as_tensor() * 2.0).unwrap()).unwrap();
+    assert!(values(&original)[0] != values(&copy)[0], "changing the original must leave the copy unchanged");
+    // `to_dtype` to the same dtype is a copy too; to f64 as well.
+    let same = original.to_dtype(DType::F32).unwrap();
+    let w = &same.vars()[1];
+    w.set(&(w.as_tensor() + 1.0).unwrap()).unwrap();
+    assert!(values(&same)[1] != values(&original)[1], "to_dtype must copy the variables");
+}
+
+#[test]
+fn grouped_distances_equal_the_plain_ones_when_all_groups_share_a_window() {
+    let seqs = generate(Kind::Shapes, 1, &DataConfig { resolution: 56, seed: 8 }).unwrap();
+    let frames = &seqs[0].frames;
+    let mut net = tiny_net(2);
+    net.calibrate([to_byte_range(frames).unwrap()].iter()).unwrap();
+    let mut rng = pbdl_core::seed::rng(3);
+    let close = |a: &Tensor, b: &Tensor| {
+        let (a, b) = (a.to_vec1::<f32>().unwrap(), b.to_vec1::<f32>().unwrap());
+        assert_eq!(a.len(), 55);
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() <= 1e-5 * y.abs().max(1.0), "{x} vs {y}");
+        }
+    };
+    // Random groups, one shared symmetry and window: the same as transforming the whole sequence
+    // first (checks the regrouping of the pairs and the order of symmetry and crop).
+    for (groups, code, top, left, side) in [(1, 0, 0, 0, 56), (7, 0, 0, 0, 56), (55, 5, 3, 2, 48), (4, 3, 8, 0, 48)] {
+        let plan: Vec<PairGroup> = random_pair_groups(groups, 56, side, false, &mut rng)
+            .into_iter()
+            .map(|g| PairGroup { symmetry: code, top, left, ..g })
+            .collect();
+        assert_eq!(plan.len(), groups);
+        let grouped = grouped_distances(&net, frames, side, &plan, 0.0, 0).unwrap();
+        let t = augment(frames, code).unwrap().narrow(2, top, side).unwrap().narrow(3, left, side).unwrap();
+        let plain = net.sequence_distances(&t, &pairs()).unwrap();
+        close(&grouped, &plain);
+    }
+    // Different windows per group do change the distances, and a plan missing a pair is an error.
+    let plan = random_pair_groups(55, 56, 48, true, &mut rng);
+    let mixed = grouped_distances(&net, frames, 48, &plan, 0.0, 0).unwrap().to_vec1::<f32>().unwrap();
+    assert!(mixed.iter().all(|d| d.is_finite()));
+    assert!(grouped_distances(&net, frames, 48, &plan[1..], 0.0, 0).is_err());
+    let bad = vec![PairGroup { pairs: (0..55).collect(), symmetry: 0, top: 10, left: 0 }];
+    assert!(grouped_distances(&net, frames, 48, &bad, 0.0, 0).is_err());
+    // Training with grouped augmentation runs and moves the weights.
+    let cfg = TrainConfig { epochs: 1, pair_groups: 5, dropout: 0.0, ..Default::default() };
+    let before = net.vars()[0].as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    let report = train(&mut net, &seqs, &cfg).unwrap();
+    assert!(report.epoch_loss[0].is_finite());
+    assert!(net.vars()[0].as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap() != before);
 }

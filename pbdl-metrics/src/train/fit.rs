@@ -3,8 +3,10 @@
 //! crops; channel shuffling does not apply to scalar frames) and dropout, the LSiM or VolSiM
 //! loss on all 55 pairs.
 //!
-//! The published training draws a flip, turn and crop per pair; here one per sequence, so that
-//! the 11 frames pass the network once per step instead of 110 times.
+//! The published training draws a flip, turn and crop per pair. By default here one per
+//! sequence, so that the 11 frames pass the network once per step instead of 110 times;
+//! [`TrainConfig::pair_groups`] splits the 55 pairs into random groups with one draw each (55
+//! groups: the published per-pair augmentation, at up to ten times the cost).
 
 use super::data::Sequence;
 use super::loss::{ground_truth, metric_loss, pairs, GroundTruth, LossConfig};
@@ -47,6 +49,10 @@ pub struct TrainConfig {
     /// (on new random crops). `false`: the statistics of the calibration pass before training
     /// stay frozen while the features they normalise change. Default false.
     pub recalibrate: bool,
+    /// Number of random groups the 55 pairs of a step are split into, each group with its own
+    /// symmetry and crop window ([`random_pair_groups`]); 1: one draw for the whole sequence,
+    /// 55: one per pair as the published training. Default 1.
+    pub pair_groups: usize,
     /// Seed of the shuffling and the augmentation. Default 0.
     pub seed: u64,
     /// Show a progress bar (only on a terminal). Default off.
@@ -66,6 +72,7 @@ impl Default for TrainConfig {
             clip: ClipConfig::None,
             train_base: true,
             recalibrate: false,
+            pair_groups: 1,
             seed: 0,
             progress: false,
         }
@@ -141,6 +148,99 @@ pub fn sequence_loss_dropout(
     metric_loss(&d, &g, loss)
 }
 
+/// One group of the per-pair augmentation: pairs (indices into [`pairs`]) that share one
+/// symmetry of the square ([`augment`] code) and one crop window.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PairGroup {
+    /// Indices into [`pairs`].
+    pub pairs: Vec<usize>,
+    /// The [`augment`] code (0: identity).
+    pub symmetry: u8,
+    /// Top row of the crop window (after the symmetry).
+    pub top: usize,
+    /// Left column of the crop window (after the symmetry).
+    pub left: usize,
+}
+
+/// The 55 pairs shuffled and split into `groups` groups of near-equal size (at most 55), each
+/// with a random symmetry (identity if `!augment`) and a random `side x side` window of
+/// `n x n` frames.
+pub fn random_pair_groups(groups: usize, n: usize, side: usize, augment: bool, rng: &mut impl Rng) -> Vec<PairGroup> {
+    let mut order: Vec<usize> = (0..pairs().len()).collect();
+    order.shuffle(rng);
+    let g = groups.clamp(1, order.len());
+    let side = side.min(n);
+    (0..g)
+        .map(|k| PairGroup {
+            pairs: order[k * order.len() / g..(k + 1) * order.len() / g].to_vec(),
+            symmetry: if augment { rng.random_range(0..8) } else { 0 },
+            top: rng.random_range(0..=n - side),
+            left: rng.random_range(0..=n - side),
+        })
+        .collect()
+}
+
+/// Distances of all 55 pairs of one sequence `[11, 1, n, n]` (in [`pairs`] order) when every
+/// pair group of `plan` sees its own symmetry and `side x side` crop. The cropped frames of all
+/// groups are mapped jointly to [0, 255] (as the published training normalises all pairs of a
+/// sample together); each group passes only the frames its pairs use through the network.
+/// Dropout `p` as [`MetricNet::pair_distances_dropout`]. Differentiable.
+pub fn grouped_distances(
+    net: &MetricNet,
+    frames: &Tensor,
+    side: usize,
+    plan: &[PairGroup],
+    p: f64,
+    seed: u64,
+) -> Result<Tensor> {
+    let all = pairs();
+    let mut covered: Vec<usize> = plan.iter().flat_map(|g| g.pairs.iter().copied()).collect();
+    covered.sort_unstable();
+    if covered != (0..all.len()).collect::<Vec<_>>() {
+        return Err(Error::invalid(
+            "grouped_distances",
+            "plan",
+            "every one of the 55 pairs must be in exactly one group",
+        ));
+    }
+    let dev = Device::Cpu;
+    let mut crops = Vec::with_capacity(plan.len());
+    let mut locals = Vec::with_capacity(plan.len());
+    for g in plan {
+        let mut used: Vec<usize> = g.pairs.iter().flat_map(|&q| [all[q].0, all[q].1]).collect();
+        used.sort_unstable();
+        used.dedup();
+        let idx = Tensor::from_vec(used.iter().map(|&u| u as u32).collect::<Vec<_>>(), used.len(), &dev)?;
+        let sub = augment(&frames.index_select(&idx, 0)?, g.symmetry)?;
+        let (h, w) = (sub.dim(2)?, sub.dim(3)?);
+        if side == 0 || g.top + side > h || g.left + side > w {
+            return Err(Error::invalid(
+                "grouped_distances",
+                "plan",
+                format!("crop window {side} at ({}, {}) does not fit {h} x {w} frames", g.top, g.left),
+            ));
+        }
+        crops.push(sub.narrow(2, g.top, side)?.narrow(3, g.left, side)?);
+        let local = |f: usize| used.binary_search(&f).expect("listed");
+        locals.push(g.pairs.iter().map(|&q| (local(all[q].0), local(all[q].1))).collect::<Vec<_>>());
+    }
+    let sizes: Vec<usize> = crops.iter().map(|c| c.dim(0)).collect::<candle_core::Result<_>>()?;
+    let joint = to_byte_range(&Tensor::cat(&crops, 0)?)?;
+    let mut dists = Vec::with_capacity(plan.len());
+    let mut start = 0;
+    for (k, (size, local)) in sizes.iter().zip(&locals).enumerate() {
+        let feats = net.features(&joint.narrow(0, start, *size)?)?;
+        dists.push(net.pair_distances_dropout(&feats, local, p, seed.wrapping_add(1000 * k as u64))?);
+        start += size;
+    }
+    // Back to `pairs` order: position of pair q in the concatenation.
+    let mut pos = vec![0u32; all.len()];
+    for (i, q) in plan.iter().flat_map(|g| g.pairs.iter()).enumerate() {
+        pos[*q] = i as u32;
+    }
+    Ok(Tensor::cat(&dists, 0)?.index_select(&Tensor::from_vec(pos, all.len(), &dev)?, 0)?)
+}
+
 /// One calibration pass of `net` over one random crop (fraction `crop`) of every sequence.
 fn calibrate_on_crops(net: &mut MetricNet, data: &[Sequence], crop: f64, rng: &mut impl Rng) -> Result<()> {
     let inputs: Vec<Tensor> = data
@@ -186,12 +286,24 @@ pub fn train(net: &mut MetricNet, data: &[Sequence], cfg: &TrainConfig) -> Resul
         order.shuffle(&mut rng);
         let mut sum = 0.0;
         for &i in &order {
-            let mut frames =
-                if cfg.augment { augment(&data[i].frames, rng.random_range(0..8))? } else { data[i].frames.clone() };
-            if cfg.crop < 1.0 {
-                frames = random_crop(&frames, crop_side(&frames, cfg.crop)?, &mut rng)?;
-            }
-            let loss = sequence_loss_dropout(net, &frames, &gts[i], &cfg.loss, cfg.dropout, rng.random())?;
+            let loss = if cfg.pair_groups > 1 {
+                let f = &data[i].frames;
+                let side = crop_side(f, cfg.crop)?;
+                let plan = random_pair_groups(cfg.pair_groups, f.dim(2)?.min(f.dim(3)?), side, cfg.augment, &mut rng);
+                let d = grouped_distances(net, f, side, &plan, cfg.dropout, rng.random())?;
+                let g = Tensor::from_slice(&gts[i], gts[i].len(), &Device::Cpu)?.to_dtype(d.dtype())?;
+                metric_loss(&d, &g, &cfg.loss)?
+            } else {
+                let mut frames = if cfg.augment {
+                    augment(&data[i].frames, rng.random_range(0..8))?
+                } else {
+                    data[i].frames.clone()
+                };
+                if cfg.crop < 1.0 {
+                    frames = random_crop(&frames, crop_side(&frames, cfg.crop)?, &mut rng)?;
+                }
+                sequence_loss_dropout(net, &frames, &gts[i], &cfg.loss, cfg.dropout, rng.random())?
+            };
             let info = train_step(step, &loss, &mut opt, &vars, &cfg.clip, &mut guard)?;
             net.clamp_weights()?;
             log.log(step, &[("loss", info.loss), ("grad_norm", info.grad_norm)])?;

@@ -76,7 +76,10 @@ pub struct LayerStats {
 }
 
 /// The trainable metric network.
-#[derive(Clone, Debug)]
+///
+/// Not `Clone`: a candle `Var` clone shares its storage, so a derived clone would train along
+/// with the original. Use [`MetricNet::deep_copy`] for an independent copy.
+#[derive(Debug)]
 pub struct MetricNet {
     cfg: MetricNetConfig,
     convs: Vec<(Var, Var)>,
@@ -154,10 +157,18 @@ impl MetricNet {
         self.convs[0].0.dtype()
     }
 
+    /// An independent copy: the same weights and statistics in new variables, so that training
+    /// or changing one leaves the other as it was.
+    pub fn deep_copy(&self) -> Result<Self> {
+        self.to_dtype(self.dtype())
+    }
+
     /// The same network (weights and statistics) in another float dtype, as new variables
-    /// (`f64` for gradient checks).
+    /// (`f64` for gradient checks; the same dtype gives [`MetricNet::deep_copy`]).
     pub fn to_dtype(&self, dtype: DType) -> Result<Self> {
-        let var = |v: &Var| -> Result<Var> { Ok(Var::from_tensor(&v.as_tensor().to_dtype(dtype)?)?) };
+        // `detach` first: `Var::from_tensor` of a variable tensor (and `to_dtype` to the same
+        // dtype) would reuse its storage instead of copying it.
+        let var = |v: &Var| -> Result<Var> { Ok(Var::from_tensor(&v.as_tensor().detach().to_dtype(dtype)?)?) };
         Ok(Self {
             cfg: self.cfg,
             convs: self.convs.iter().map(|(w, b)| Ok((var(w)?, var(b)?))).collect::<Result<_>>()?,
