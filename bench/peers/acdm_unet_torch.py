@@ -13,8 +13,8 @@ linear attention 4 x 32 on every level, full attention in the middle, 4x4 stride
 unused top-level skip). Its parameter count is checked against pbdl's (6,981,300 for dim 128 and
 12 channels) before timing.
 
-torch is not installed on the pbdl development machine, so this script has not been run there.
-Usage (2 threads, as pbdl's rows):
+Usage (2 threads, as pbdl's rows): bench/peers/diffusion_run.sh [--full] installs torch in its own
+venv and runs this script; or, with torch already installed,
     python3 bench/peers/acdm_unet_torch.py --out target/pbdl/bench/diffusion_peers.json [--full]
 Output: {"rows": [{case, method, size, seconds, unit, error, error_kind, peer: true, threads}]}.
 """
