@@ -17,21 +17,13 @@ venv="$root/target/pbdl/diffusion-peers-venv"
 out="$root/target/pbdl/bench/diffusion_peers.json"
 threads="${PBDL_THREADS:-2}"
 
-skip() { echo "peers: skipped: $*" >&2; exit 0; }
-
-py="$(command -v python3 || true)"
-[ -n "$py" ] || skip "python3 not found"
-"$py" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 10) else 1)' || skip "python >= 3.10 needed ($("$py" --version))"
-
-if [ ! -x "$venv/bin/python" ]; then
-  echo "peers: creating $venv" >&2
-  "$py" -m venv "$venv" || skip "python3 -m venv failed (install python3-venv)"
-fi
-if ! "$venv/bin/python" -c 'import torch' 2>/dev/null; then
+. "$root/bench/peers/venv.sh"
+peer_venv "$venv"
+if ! "$vpy" -c 'import torch' 2>/dev/null; then
   echo "peers: installing torch (CPU use) from ${PBDL_TORCH_INDEX:-PyPI}" >&2
   index=()
   [ -n "${PBDL_TORCH_INDEX:-}" ] && index=(--index-url "$PBDL_TORCH_INDEX")
-  "$venv/bin/python" -m pip install --quiet "${index[@]}" torch numpy \
+  "$vpy" -m pip install --quiet "${index[@]}" torch numpy \
     || skip "pip install torch failed (no network or no wheel for this platform)"
 fi
 
@@ -39,5 +31,5 @@ mkdir -p "$(dirname "$out")"
 export OMP_NUM_THREADS="$threads" MKL_NUM_THREADS="$threads" PBDL_THREADS="$threads"
 pin=()
 command -v taskset >/dev/null && pin=(taskset -c "0-$((threads - 1))")
-"${pin[@]}" "$venv/bin/python" "$root/bench/peers/acdm_unet_torch.py" --out "$out" "$@" \
+"${pin[@]}" "$vpy" "$root/bench/peers/acdm_unet_torch.py" --out "$out" "$@" \
   || skip "acdm_unet_torch.py failed (see above)"

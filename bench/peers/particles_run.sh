@@ -19,17 +19,8 @@ venv="$root/target/pbdl/particles-peers-venv"
 out="$root/target/pbdl/bench/particles_peers.json"
 threads="${PBDL_THREADS:-2}"
 
-skip() { echo "peers: skipped: $*" >&2; exit 0; }
-
-py="$(command -v python3 || true)"
-[ -n "$py" ] || skip "python3 not found"
-"$py" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 10) else 1)' || skip "python >= 3.10 needed ($("$py" --version))"
-
-if [ ! -x "$venv/bin/python" ]; then
-  echo "peers: creating $venv" >&2
-  "$py" -m venv "$venv" || skip "python3 -m venv failed (install python3-venv)"
-fi
-vpy="$venv/bin/python"
+. "$root/bench/peers/venv.sh"
+peer_venv "$venv"
 if ! "$vpy" -c 'import numpy, scipy' 2>/dev/null; then
   echo "peers: installing numpy and scipy from PyPI" >&2
   "$vpy" -m pip install --quiet --upgrade pip || skip "pip unavailable"

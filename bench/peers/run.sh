@@ -13,20 +13,12 @@ venv="$root/target/pbdl/peers-venv"
 out="$root/target/pbdl/bench/grid_peers.json"
 threads="${PBDL_THREADS:-2}"
 
-skip() { echo "peers: skipped: $*" >&2; exit 0; }
-
-py="$(command -v python3 || true)"
-[ -n "$py" ] || skip "python3 not found"
-"$py" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 10) else 1)' || skip "python >= 3.10 needed ($("$py" --version))"
-
-if [ ! -x "$venv/bin/python" ]; then
-  echo "peers: creating $venv" >&2
-  "$py" -m venv "$venv" || skip "python3 -m venv failed (install python3-venv)"
-fi
-if ! "$venv/bin/python" -c 'import phi, jax_cfd, jax' 2>/dev/null; then
+. "$root/bench/peers/venv.sh"
+peer_venv "$venv"
+if ! "$vpy" -c 'import phi, jax_cfd, jax' 2>/dev/null; then
   echo "peers: installing phiflow 3.4, jax-cfd 0.2.1, jax (CPU) from PyPI" >&2
-  "$venv/bin/python" -m pip install --quiet --upgrade pip || skip "pip unavailable"
-  "$venv/bin/python" -m pip install --quiet "phiflow==3.4.*" "jax-cfd==0.2.1" "jax[cpu]" numpy \
+  "$vpy" -m pip install --quiet --upgrade pip || skip "pip unavailable"
+  "$vpy" -m pip install --quiet "phiflow==3.4.*" "jax-cfd==0.2.1" "jax[cpu]" numpy \
     || skip "pip install failed (no network or no wheels for this platform)"
 fi
 
@@ -37,5 +29,5 @@ export XLA_FLAGS="--xla_cpu_multi_thread_eigen=false intra_op_parallelism_thread
 export JAX_PLATFORMS=cpu PBDL_THREADS="$threads"
 pin=()
 command -v taskset >/dev/null && pin=(taskset -c "0-$((threads - 1))")
-"${pin[@]}" "$venv/bin/python" "$root/bench/peers/grid_peers.py" --out "$out" "$@" \
+"${pin[@]}" "$vpy" "$root/bench/peers/grid_peers.py" --out "$out" "$@" \
   || skip "grid_peers.py failed (see above)"
