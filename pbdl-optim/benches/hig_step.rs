@@ -8,39 +8,18 @@
 //! `cargo bench -p pbdl-optim --bench hig_step`
 #![allow(missing_docs)] // criterion_group! generates an undocumented function
 
-use candle_core::{Device, Tensor, Var};
 use criterion::{criterion_group, Criterion};
 use faer::{MatRef, Par};
 use pbdl_optim::hig::{
-    composed_jacobian, CandleModel, Decomposition, HalfInverse, HigConfig, HigTrainer, JacobianMode,
+    composed_jacobian, from_mlp, CandleModel, Decomposition, HalfInverse, HigConfig, HigTrainer, JacobianMode,
+    MlpForward,
 };
 use pbdl_optim::mlp::{Activation, Mlp};
 use pbdl_optim::physics::{Dataset, Oscillators};
 
 /// `net` rebuilt from candle Vars (same weights, ReLU hidden layers, linear output).
-fn as_candle(net: &Mlp, mode: JacobianMode) -> CandleModel<impl Fn(&Tensor) -> candle_core::Result<Tensor>> {
-    let (sizes, p) = (net.sizes().to_vec(), net.params());
-    let mut vars = Vec::new();
-    let mut off = 0;
-    for w in sizes.windows(2) {
-        vars.push(Var::from_slice(&p[off..off + w[0] * w[1]], (w[1], w[0]), &Device::Cpu).expect("weight"));
-        off += w[0] * w[1];
-        vars.push(Var::from_slice(&p[off..off + w[1]], w[1], &Device::Cpu).expect("bias"));
-        off += w[1];
-    }
-    let layers = vars.clone();
-    let forward = move |x: &Tensor| {
-        let mut h = x.clone();
-        let n = layers.len() / 2;
-        for l in 0..n {
-            h = h.matmul(&layers[2 * l].t()?)?.broadcast_add(&layers[2 * l + 1])?;
-            if l + 1 < n {
-                h = h.relu()?;
-            }
-        }
-        Ok(h)
-    };
-    CandleModel::new(vars, sizes[0], sizes[sizes.len() - 1], forward).expect("model").with_mode(mode)
+fn as_candle(net: &Mlp, mode: JacobianMode) -> CandleModel<MlpForward> {
+    from_mlp(net).expect("model").with_mode(mode)
 }
 
 fn hig_step_oscillators(c: &mut Criterion) {

@@ -105,6 +105,11 @@ impl Mlp {
         Ok(Self { sizes: sizes.to_vec(), activation, params, offsets })
     }
 
+    /// Activation of the hidden layers.
+    pub fn activation(&self) -> Activation {
+        self.activation
+    }
+
     /// Layer sizes, input first.
     pub fn sizes(&self) -> &[usize] {
         &self.sizes

@@ -5,7 +5,8 @@ use candle_core::{DType, Device, Tensor, Var};
 use faer::{Mat, MatRef};
 use pbdl_core::conv::{conv1d, Conv1dParams};
 use pbdl_optim::hig::{
-    composed_jacobian, evaluate, AdamTrainer, CandleModel, HigConfig, HigTrainer, JacobianMode, JacobianModel,
+    composed_jacobian, evaluate, from_mlp, AdamTrainer, CandleModel, HigConfig, HigTrainer, JacobianMode,
+    JacobianModel, MlpForward,
 };
 use pbdl_optim::mlp::{Activation, Mlp};
 use pbdl_optim::physics::{Batch, Dataset, Oscillators, Physics, Rk4Rollout};
@@ -19,35 +20,11 @@ fn max_rel(a: &[f64], b: &[f64]) -> f64 {
     num / b.iter().map(|y| y.abs()).fold(0.0, f64::max)
 }
 
-/// The Mlp's weights as candle `Var`s (`W_l [out, in]`, `b_l`, layer after layer: the Mlp's
-/// own flat order) and a forward closure with the same activation.
-fn mlp_as_candle(net: &Mlp, act: Activation) -> CandleModel<impl Fn(&Tensor) -> candle_core::Result<Tensor>> {
-    let dev = Device::Cpu;
-    let (sizes, p) = (net.sizes().to_vec(), net.params());
-    let mut vars = Vec::new();
-    let mut off = 0;
-    for w in sizes.windows(2) {
-        vars.push(Var::from_slice(&p[off..off + w[0] * w[1]], (w[1], w[0]), &dev).unwrap());
-        off += w[0] * w[1];
-        vars.push(Var::from_slice(&p[off..off + w[1]], w[1], &dev).unwrap());
-        off += w[1];
-    }
-    let layers = vars.clone();
-    let forward = move |x: &Tensor| {
-        let mut h = x.clone();
-        let n = layers.len() / 2;
-        for l in 0..n {
-            h = h.matmul(&layers[2 * l].t()?)?.broadcast_add(&layers[2 * l + 1])?;
-            if l + 1 < n {
-                h = match act {
-                    Activation::Tanh => h.tanh()?,
-                    Activation::Relu => h.relu()?,
-                };
-            }
-        }
-        Ok(h)
-    };
-    CandleModel::new(vars, sizes[0], *sizes.last().unwrap(), forward).unwrap()
+/// The Mlp's weights as candle `Var`s through the library's [`from_mlp`]; the activation
+/// argument is checked against the net's own.
+fn mlp_as_candle(net: &Mlp, act: Activation) -> CandleModel<MlpForward> {
+    assert_eq!(net.activation(), act);
+    from_mlp(net).unwrap()
 }
 
 /// A non-MLP model: the 4 inputs as one channel, a circular conv1d (3 channels, kernel 3, from

@@ -262,3 +262,40 @@ where
         backward_into(&self.vars, &self.offsets, y, &c, grad)
     }
 }
+
+/// The forward closure of [`from_mlp`].
+pub type MlpForward = Box<dyn Fn(&Tensor) -> candle_core::Result<Tensor> + Send + Sync>;
+
+/// `net` as a candle model with the same weights: `W_l` as `Var`s of shape `[out, in]` and `b_l`
+/// layer after layer (the `Mlp`'s own flat order, so parameter vectors carry over unchanged),
+/// the `Mlp`'s hidden activation, linear output. A starting point for your own candle
+/// variants of a network trained with the hand-written `Mlp`, and the reference the adapter is
+/// tested against.
+pub fn from_mlp(net: &crate::mlp::Mlp) -> Result<CandleModel<MlpForward>> {
+    use crate::mlp::Activation;
+    let (sizes, p) = (net.sizes().to_vec(), net.params());
+    let mut vars = Vec::with_capacity(2 * (sizes.len() - 1));
+    let mut off = 0;
+    for w in sizes.windows(2) {
+        vars.push(Var::from_slice(&p[off..off + w[0] * w[1]], (w[1], w[0]), &Device::Cpu)?);
+        off += w[0] * w[1];
+        vars.push(Var::from_slice(&p[off..off + w[1]], w[1], &Device::Cpu)?);
+        off += w[1];
+    }
+    let (layers, act) = (vars.clone(), net.activation());
+    let forward: MlpForward = Box::new(move |x: &Tensor| {
+        let mut h = x.clone();
+        let n = layers.len() / 2;
+        for l in 0..n {
+            h = h.matmul(&layers[2 * l].t()?)?.broadcast_add(&layers[2 * l + 1])?;
+            if l + 1 < n {
+                h = match act {
+                    Activation::Tanh => h.tanh()?,
+                    Activation::Relu => h.relu()?,
+                };
+            }
+        }
+        Ok(h)
+    });
+    CandleModel::new(vars, sizes[0], sizes[sizes.len() - 1], forward)
+}

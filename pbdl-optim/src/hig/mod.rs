@@ -67,7 +67,7 @@ pub mod model;
 pub mod solve;
 pub mod train;
 
-pub use candle_model::{CandleCache, CandleModel, JacobianMode};
+pub use candle_model::{from_mlp, CandleCache, CandleModel, JacobianMode, MlpForward};
 pub use loss::Loss;
 pub use model::JacobianModel;
 pub use solve::{Decomposition, HalfInverse, HigConfig, SolveInfo};
