@@ -30,8 +30,10 @@
 use crate::error::Result;
 use candle_core::backprop::GradStore;
 use candle_core::{Tensor, Var};
-use pbdl_core::train::ClipConfig;
+use candle_nn::Optimizer;
+use pbdl_core::train::{AdamConfig, ClipConfig, OptimizerConfig};
 use serde::{Deserialize, Serialize};
+use std::time::Instant;
 
 /// Which gradient paths of a rollout are kept; see the module docs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -150,4 +152,84 @@ impl BpttRun {
     pub fn final_loss(&self) -> f64 {
         self.test_loss.last().copied().unwrap_or(f64::NAN)
     }
+}
+
+/// The optimiser side of a stabilized-BPTT training run, shared by the experiments' configs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrainSchedule {
+    /// Gradient mode.
+    pub mode: GradientMode,
+    /// Clipping of the (combined) gradient.
+    pub clip: ClipConfig,
+    /// Adam learning rate.
+    pub lr: f64,
+    /// Batch size (at most the number of training episodes).
+    pub batch: usize,
+    /// Optimizer steps.
+    pub iterations: usize,
+    /// Evaluate the test loss every this many steps (and after the last).
+    pub eval_every: usize,
+}
+
+/// A rollout and its loss, as [`gradients`] takes them.
+pub struct Rollout<'a> {
+    /// Steps of an episode.
+    pub steps: usize,
+    /// The controller `u = N(s)`.
+    pub net: &'a dyn Fn(&Tensor) -> candle_core::Result<Tensor>,
+    /// The physics step `s' = P(s, u)`.
+    pub physics: &'a dyn Fn(&Tensor, &Tensor) -> candle_core::Result<Tensor>,
+    /// The loss of a trajectory.
+    pub loss: &'a dyn Fn(&[Tensor]) -> candle_core::Result<Tensor>,
+}
+
+/// Adam on the mode's gradient over the training episodes `train` (`[n, ...]`, batches taken in
+/// order and cycled, as the official code does), recording `evaluate()` (the test loss) at step 0,
+/// every `eval_every` steps and after the last. Training time excludes evaluation.
+pub fn train(
+    vars: &[Var],
+    train: &Tensor,
+    rollout: &Rollout<'_>,
+    schedule: &TrainSchedule,
+    mut evaluate: impl FnMut() -> Result<f64>,
+) -> Result<BpttRun> {
+    let n_train = train.dim(0)?;
+    if schedule.batch == 0 || schedule.batch > n_train {
+        return Err(crate::Error::InvalidConfig {
+            name: "batch",
+            value: schedule.batch as f64,
+            hint: "use a batch size between 1 and the number of training episodes",
+        });
+    }
+    let adam = OptimizerConfig::Adam(AdamConfig { lr: schedule.lr, ..Default::default() });
+    let mut opt = adam.build(vars.to_vec())?;
+    let mut run = BpttRun { steps: vec![0], test_loss: vec![evaluate()?], ..Default::default() };
+    let n_batches = n_train / schedule.batch;
+    let (mut agree_sum, mut agree_n) = (0.0, 0usize);
+    for it in 0..schedule.iterations {
+        let s0 = train.narrow(0, (it % n_batches) * schedule.batch, schedule.batch)?;
+        let t = Instant::now();
+        let g = gradients(
+            schedule.mode,
+            vars,
+            &s0,
+            rollout.steps,
+            rollout.net,
+            rollout.physics,
+            rollout.loss,
+            &schedule.clip,
+        )?;
+        opt.step(&g.grads)?;
+        run.seconds += t.elapsed().as_secs_f64();
+        if let Some(a) = g.agreement {
+            agree_sum += a;
+            agree_n += 1;
+        }
+        if (it + 1) % schedule.eval_every.max(1) == 0 || it + 1 == schedule.iterations {
+            run.steps.push(it + 1);
+            run.test_loss.push(evaluate()?);
+        }
+    }
+    run.agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
+    Ok(run)
 }

@@ -22,15 +22,13 @@
 
 pub mod fast;
 
-use crate::bptt::{gradients, GradientMode};
+use crate::bptt::{GradientMode, Rollout};
 pub use crate::controller::DenseController;
 use crate::error::Result;
 use candle_core::{Device, Tensor};
-use candle_nn::Optimizer;
-use pbdl_core::train::{AdamConfig, ClipConfig, OptimizerConfig};
+use pbdl_core::train::ClipConfig;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
-use std::time::Instant;
 
 /// Physical constants and integration settings of a cart with `poles` poles.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -156,6 +154,20 @@ impl CartPoleConfig {
     }
 }
 
+impl CartPoleConfig {
+    /// The optimiser side of this run.
+    pub fn schedule(&self) -> crate::bptt::TrainSchedule {
+        crate::bptt::TrainSchedule {
+            mode: self.mode,
+            clip: self.clip,
+            lr: self.lr,
+            batch: self.batch,
+            iterations: self.iterations,
+            eval_every: self.eval_every,
+        }
+    }
+}
+
 /// What a cart-pole run measured (test loss `1 - mean cos th`).
 pub type CartPoleRun = crate::bptt::BpttRun;
 
@@ -175,33 +187,11 @@ pub fn train(cfg: &CartPoleConfig) -> Result<CartPoleRun> {
     let net = Controller::with_zero_last_layer(phys.state_dim(), cfg.width, 1, cfg.seed)?;
     let train = phys.initial_states(cfg.train, cfg.seed)?;
     let test = phys.initial_states(cfg.test, cfg.seed + 1)?;
-    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, ..Default::default() }).build(net.vars().to_vec())?;
-    let mut run = CartPoleRun::default();
-    let eval = |run: &mut CartPoleRun, step: usize| -> Result<()> {
-        run.steps.push(step);
-        run.test_loss.push(evaluate(&phys, &net, &test)?);
-        Ok(())
+    let rollout = Rollout {
+        steps: phys.steps,
+        net: &|s| net.forward(s),
+        physics: &|s, u| phys.step(s, u),
+        loss: &|traj| phys.loss(traj.last().expect("non-empty rollout")),
     };
-    eval(&mut run, 0)?;
-    let n_batches = (cfg.train / cfg.batch).max(1);
-    let (mut agree_sum, mut agree_n) = (0.0, 0usize);
-    let forward = |s: &Tensor| net.forward(s);
-    let step_fn = |s: &Tensor, u: &Tensor| phys.step(s, u);
-    let loss_fn = |traj: &[Tensor]| phys.loss(traj.last().expect("non-empty rollout"));
-    for it in 0..cfg.iterations {
-        let s0 = train.narrow(0, (it % n_batches) * cfg.batch, cfg.batch)?;
-        let t = Instant::now();
-        let g = gradients(cfg.mode, net.vars(), &s0, phys.steps, &forward, &step_fn, &loss_fn, &cfg.clip)?;
-        opt.step(&g.grads)?;
-        run.seconds += t.elapsed().as_secs_f64();
-        if let Some(a) = g.agreement {
-            agree_sum += a;
-            agree_n += 1;
-        }
-        if (it + 1) % cfg.eval_every.max(1) == 0 || it + 1 == cfg.iterations {
-            eval(&mut run, it + 1)?;
-        }
-    }
-    run.agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
-    Ok(run)
+    crate::bptt::train(net.vars(), &train, &rollout, &cfg.schedule(), || evaluate(&phys, &net, &test))
 }

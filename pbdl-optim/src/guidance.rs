@@ -27,15 +27,13 @@
 //! [`train`] runs one configuration; the bench entry `guidance` compares modes F, P and C for
 //! `rc in {1, 0.1, 0.01, 0.001}`.
 
-use crate::bptt::{gradients, GradientMode};
+use crate::bptt::{GradientMode, Rollout};
 pub use crate::controller::DenseController;
 use crate::error::{Error, Result};
 use candle_core::{Device, Tensor};
-use candle_nn::Optimizer;
-use pbdl_core::train::{AdamConfig, ClipConfig, OptimizerConfig};
+use pbdl_core::train::ClipConfig;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
-use std::time::Instant;
 
 /// Physical constants and integration settings of the driver-evader system.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -327,6 +325,20 @@ impl GuidanceConfig {
     }
 }
 
+impl GuidanceConfig {
+    /// The optimiser side of this run.
+    pub fn schedule(&self) -> crate::bptt::TrainSchedule {
+        crate::bptt::TrainSchedule {
+            mode: self.mode,
+            clip: self.clip,
+            lr: self.lr,
+            batch: self.batch,
+            iterations: self.iterations,
+            eval_every: self.eval_every,
+        }
+    }
+}
+
 /// What a guidance run measured (test loss with the control cost).
 pub type GuidanceRun = crate::bptt::BpttRun;
 
@@ -346,45 +358,16 @@ pub fn evaluate(stepper: &GuidanceStepper, net: &DenseController, test: &Tensor,
 /// Trains a fresh controller with `cfg` (Adam on the mode's gradient) and records the test loss.
 pub fn train(cfg: &GuidanceConfig) -> Result<GuidanceRun> {
     let phys = cfg.physics;
-    if cfg.batch == 0 || cfg.batch > cfg.train {
-        return Err(Error::InvalidConfig {
-            name: "batch",
-            value: cfg.batch as f64,
-            hint: "use a batch size between 1 and the number of training episodes",
-        });
-    }
     let stepper = phys.stepper()?;
     let net = DenseController::new(phys.phys_dim(), cfg.width, phys.control_dim(), cfg.seed)?;
     let train = phys.initial_states(cfg.train, cfg.seed)?;
     let test = phys.initial_states(cfg.test, cfg.seed + 1)?;
-    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, ..Default::default() }).build(net.vars().to_vec())?;
-    let mut run = GuidanceRun::default();
-    let eval = |run: &mut GuidanceRun, step: usize| -> Result<()> {
-        run.steps.push(step);
-        run.test_loss.push(evaluate(&stepper, &net, &test, cfg.rc)?);
-        Ok(())
-    };
-    eval(&mut run, 0)?;
-    let n_batches = cfg.train / cfg.batch;
-    let (mut agree_sum, mut agree_n) = (0.0, 0usize);
     let phys_dim = phys.phys_dim();
-    let forward = |s: &Tensor| net.forward(&s.narrow(1, 0, phys_dim)?);
-    let step_fn = |s: &Tensor, u: &Tensor| stepper.step(s, u);
-    let loss_fn = |traj: &[Tensor]| stepper.loss(traj, cfg.rc);
-    for it in 0..cfg.iterations {
-        let s0 = train.narrow(0, (it % n_batches) * cfg.batch, cfg.batch)?;
-        let t = Instant::now();
-        let g = gradients(cfg.mode, net.vars(), &s0, phys.steps, &forward, &step_fn, &loss_fn, &cfg.clip)?;
-        opt.step(&g.grads)?;
-        run.seconds += t.elapsed().as_secs_f64();
-        if let Some(a) = g.agreement {
-            agree_sum += a;
-            agree_n += 1;
-        }
-        if (it + 1) % cfg.eval_every.max(1) == 0 || it + 1 == cfg.iterations {
-            eval(&mut run, it + 1)?;
-        }
-    }
-    run.agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
-    Ok(run)
+    let rollout = Rollout {
+        steps: phys.steps,
+        net: &|s| net.forward(&s.narrow(1, 0, phys_dim)?),
+        physics: &|s, u| stepper.step(s, u),
+        loss: &|traj| stepper.loss(traj, cfg.rc),
+    };
+    crate::bptt::train(net.vars(), &train, &rollout, &cfg.schedule(), || evaluate(&stepper, &net, &test, cfg.rc))
 }

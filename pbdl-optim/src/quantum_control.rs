@@ -27,17 +27,15 @@
 //! weights and zero biases. [`train`] runs one configuration; the bench entry
 //! `quantum_control` compares modes F, P and C for targets 3, 4 and 5.
 
-use crate::bptt::{gradients, GradientMode};
+use crate::bptt::{GradientMode, Rollout};
 use crate::error::{Error, Result};
 use candle_core::{DType, Device, Shape, Tensor, Var};
-use candle_nn::Optimizer;
 use pbdl_core::conv::{conv1d, Conv1dParams};
 use pbdl_core::op::{apply2, apply_kernel3, Kernel2, Kernel3, Op2};
-use pbdl_core::train::{AdamConfig, ClipConfig, OptimizerConfig};
+use pbdl_core::train::ClipConfig;
 use pbdl_core::Real;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
-use std::time::Instant;
 
 /// The driven particle in a box.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -459,6 +457,20 @@ impl QuantumControlConfig {
     }
 }
 
+impl QuantumControlConfig {
+    /// The optimiser side of this run.
+    pub fn schedule(&self) -> crate::bptt::TrainSchedule {
+        crate::bptt::TrainSchedule {
+            mode: self.mode,
+            clip: self.clip,
+            lr: self.lr,
+            batch: self.batch,
+            iterations: self.iterations,
+            eval_every: self.eval_every,
+        }
+    }
+}
+
 /// What a quantum-control run measured (test loss `sum_k (1 - fidelity_k)`).
 pub type QuantumControlRun = crate::bptt::BpttRun;
 
@@ -479,44 +491,15 @@ pub fn evaluate(phys: &QuantumControl, net: &ConvController, test: &Tensor) -> R
 pub fn train(cfg: &QuantumControlConfig) -> Result<QuantumControlRun> {
     let phys = cfg.physics;
     phys.validate()?;
-    if cfg.batch == 0 || cfg.batch > cfg.train {
-        return Err(Error::InvalidConfig {
-            name: "batch",
-            value: cfg.batch as f64,
-            hint: "use a batch size between 1 and the number of training episodes",
-        });
-    }
     let net = ConvController::new(phys.points, cfg.width, cfg.seed)?;
     let train = phys.initial_states(cfg.train, cfg.seed)?;
     let test = phys.initial_states(cfg.test, cfg.seed + 1)?;
     let target = phys.target_tensor()?;
-    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, ..Default::default() }).build(net.vars().to_vec())?;
-    let mut run = QuantumControlRun::default();
-    let eval = |run: &mut QuantumControlRun, step: usize| -> Result<()> {
-        run.steps.push(step);
-        run.test_loss.push(evaluate(&phys, &net, &test)?);
-        Ok(())
+    let rollout = Rollout {
+        steps: phys.steps,
+        net: &|s| net.forward(s),
+        physics: &|s, u| phys.step(s, u),
+        loss: &|traj| phys.loss(traj, &target),
     };
-    eval(&mut run, 0)?;
-    let n_batches = cfg.train / cfg.batch;
-    let (mut agree_sum, mut agree_n) = (0.0, 0usize);
-    let forward = |s: &Tensor| net.forward(s);
-    let step_fn = |s: &Tensor, u: &Tensor| phys.step(s, u);
-    let loss_fn = |traj: &[Tensor]| phys.loss(traj, &target);
-    for it in 0..cfg.iterations {
-        let s0 = train.narrow(0, (it % n_batches) * cfg.batch, cfg.batch)?;
-        let t = Instant::now();
-        let g = gradients(cfg.mode, net.vars(), &s0, phys.steps, &forward, &step_fn, &loss_fn, &cfg.clip)?;
-        opt.step(&g.grads)?;
-        run.seconds += t.elapsed().as_secs_f64();
-        if let Some(a) = g.agreement {
-            agree_sum += a;
-            agree_n += 1;
-        }
-        if (it + 1) % cfg.eval_every.max(1) == 0 || it + 1 == cfg.iterations {
-            eval(&mut run, it + 1)?;
-        }
-    }
-    run.agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
-    Ok(run)
+    crate::bptt::train(net.vars(), &train, &rollout, &cfg.schedule(), || evaluate(&phys, &net, &test))
 }
