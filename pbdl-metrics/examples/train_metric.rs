@@ -20,11 +20,10 @@
 //! (with the control row) as `table.md`.
 
 use pbdl_metrics::train::data::{cached, generate, load_sequences, DataConfig, Kind};
-use pbdl_metrics::train::experiment::cache_name;
+use pbdl_metrics::train::experiment::{cache_name, compared_metrics, published_lsim};
 use pbdl_metrics::train::loss::fit2_coefficient;
-use pbdl_metrics::train::{evaluate, markdown_table, MetricNet, Scored};
+use pbdl_metrics::train::{evaluate, markdown_table, MetricNet};
 use pbdl_metrics::train::{run_experiment, ExperimentConfig, GroundTruth};
-use pbdl_metrics::{Lsim, LsimSize};
 
 /// `--eval MODEL [--test-seed S]`: scores a saved model on freshly generated (cached) test sets
 /// of seed `S`, next to L2, SSIM and (unless `--no-lsim`) the published LSiM, without training.
@@ -38,17 +37,8 @@ fn eval_only(cfg: &ExperimentConfig, model: &str, seed: u64, split: &str) -> Res
         let dc = DataConfig { resolution: cfg.resolution, seed };
         sets.push((kind.short().to_string(), cached(path, || generate(kind, count, &dc))?));
     }
-    let lsim = if cfg.published_lsim {
-        pbdl_metrics::weights::weights_dir().and_then(|d| Lsim::load(d.join(pbdl_metrics::weights::LSIM_FILE)).ok())
-    } else {
-        None
-    };
-    let mut metrics = vec![Scored::L2, Scored::Ssim];
-    if let Some(l) = &lsim {
-        metrics.push(Scored::Lsim(l, LsimSize::Resize224));
-    }
-    metrics.push(Scored::Trained(&net));
-    let rows = evaluate(&metrics, &sets)?;
+    let lsim = published_lsim(cfg.published_lsim);
+    let rows = evaluate(&compared_metrics(lsim.as_ref(), &net), &sets)?;
     println!("{split} seed {seed}, model {model}\n\n{}", markdown_table(&rows));
     Ok(())
 }

@@ -166,6 +166,26 @@ pub const CONTROL: &str = "untrained (control)";
 /// Column labels of the held-out kinds of the default training kinds.
 pub const UNSEEN: [&str; 2] = ["Smo (unseen kind)", "Sha (unseen kind)"];
 
+/// The published LSiM when `wanted` and its weights are found (`../shared/weights/` or
+/// `$PBDL_WEIGHTS_DIR`); `None` otherwise, and the table has no LSiM row.
+pub fn published_lsim(wanted: bool) -> Option<Lsim> {
+    if !wanted {
+        return None;
+    }
+    crate::weights::weights_dir().and_then(|d| Lsim::load(d.join(crate::weights::LSIM_FILE)).ok())
+}
+
+/// The metrics a result table compares, in row order: L2, SSIM, the published LSiM (224) when
+/// given, then the trained `net`.
+pub fn compared_metrics<'a>(lsim: Option<&'a Lsim>, net: &'a MetricNet) -> Vec<Scored<'a>> {
+    let mut metrics = vec![Scored::L2, Scored::Ssim];
+    if let Some(l) = lsim {
+        metrics.push(Scored::Lsim(l, LsimSize::Resize224));
+    }
+    metrics.push(Scored::Trained(net));
+    metrics
+}
+
 /// Runs the experiment (module docs).
 pub fn run_experiment(cfg: &ExperimentConfig) -> Result<ExperimentReport> {
     let t = Instant::now();
@@ -234,17 +254,8 @@ pub fn run_experiment(cfg: &ExperimentConfig) -> Result<ExperimentReport> {
     let training = train(&mut net, &train_set, &tc)?;
 
     let t = Instant::now();
-    let lsim = if cfg.published_lsim {
-        crate::weights::weights_dir().and_then(|d| Lsim::load(d.join(crate::weights::LSIM_FILE)).ok())
-    } else {
-        None
-    };
-    let mut metrics = vec![Scored::L2, Scored::Ssim];
-    if let Some(l) = &lsim {
-        metrics.push(Scored::Lsim(l, LsimSize::Resize224));
-    }
-    metrics.push(Scored::Trained(&net));
-    let mut rows = evaluate(&metrics, &sets)?;
+    let lsim = published_lsim(cfg.published_lsim);
+    let mut rows = evaluate(&compared_metrics(lsim.as_ref(), &net), &sets)?;
     let mut control_row = evaluate(&[Scored::Trained(&control)], &sets)?;
     control_row[0].metric = CONTROL.to_string();
     rows.extend(control_row);
