@@ -201,51 +201,6 @@ fn bad_input_is_a_typed_error() {
     assert!(err.to_string().contains("width"), "{err}");
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
-/// Time per gradient (b = 8, 100 steps, width 100) of the candle path and the fast path.
-#[test]
-#[ignore = "timing, prints medians side by side; about 1 min"]
-fn speed_against_candle() {
-    println!("| poles | mode | candle ms | fast ms | ratio |\n|---:|---|---:|---:|---:|");
-    for poles in 1..=4 {
-        let p = CartPole::new(poles);
-        let net = Controller::with_zero_last_layer(p.state_dim(), 100, 1, 42).unwrap();
-        // Train-like weights: a non-zero last layer so that every path carries gradient.
-        let last = pbdl_core::seed::rand_uniform((100, 1), -0.2, 0.2, DType::F64, &Device::Cpu, 1).unwrap();
-        net.vars()[4].set(&last).unwrap();
-        let fast_net = FastController::from_dense(&net).unwrap();
-        let s0 = p.initial_states(8, 42).unwrap();
-        let s0v = s0.flatten_all().unwrap().to_vec1::<f64>().unwrap();
-        let mut bptt = FastBptt::new(&p, 100, 8);
-        for mode in [GradientMode::F, GradientMode::P, GradientMode::C] {
-            let time = |f: &mut dyn FnMut(), reps: usize| {
-                f();
-                median(
-                    (0..reps)
-                        .map(|_| {
-                            let t = Instant::now();
-                            f();
-                            t.elapsed().as_secs_f64()
-                        })
-                        .collect(),
-                )
-            };
-            let slow = time(&mut || drop(candle_grads(&p, &net, &s0, mode, &ClipConfig::None)), 7);
-            let quick = time(
-                &mut || {
-                    bptt.gradients(&fast_net, &s0v, mode, &ClipConfig::None).unwrap();
-                },
-                31,
-            );
-            println!("| {poles} | {mode:?} | {:.2} | {:.3} | {:.1} |", slow * 1e3, quick * 1e3, slow / quick);
-        }
-    }
-}
-
 /// The bench entry `cartpole` in quick mode (20 epochs, 12 runs) writes its rows and plot.
 #[test]
 #[ignore = "runs the quick bench entry: 12 runs of 640 Adam steps, about 1-2 min"]
