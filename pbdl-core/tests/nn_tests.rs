@@ -155,8 +155,8 @@ fn activations_gradients_are_finite_for_large_inputs() {
 }
 
 /// candle's fused `gelu` / `gelu_erf` backward use 6-digit constants: measurable gradient error,
-/// which is why `nn::activation::{gelu, gelu_erf}` are composed instead. Their forward is exact
-/// and equal to ours.
+/// which is why `nn::activation::gelu` is composed and `nn::activation::gelu_erf` is our own
+/// fused op with full-precision constants. Their forward is exact and equal to ours.
 #[test]
 fn candle_fused_gelu_backward_is_only_approximate() {
     let x = activation_input();

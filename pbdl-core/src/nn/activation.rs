@@ -4,8 +4,9 @@
 //!
 //! * `Tensor::gelu` (tanh approximation) and `Tensor::gelu_erf` differentiate with constants
 //!   rounded to 6 digits (`0.797885`, `0.398942`, ...), so their gradients are off by ~2e-7
-//!   relative (measured in `tests/nn_tests.rs`; ours: < 1e-9). [`gelu`] and [`gelu_erf`] here
-//!   are composed from exact ops instead; their values equal candle's.
+//!   relative (measured in `tests/nn_tests.rs`; ours: < 1e-9). [`gelu`] here is composed from
+//!   exact ops instead, and [`gelu_erf`] is a fused CPU kernel with a hand-written backward
+//!   in full-precision constants ([`gelu_erf_composed`] elsewhere); their values equal candle's.
 //! * `candle_nn::ops::mish` computes `log(1 + exp(x))`: `exp` overflows for `x > 88` in `f32`
 //!   (`x > 709` in `f64`) and the gradient becomes NaN. [`softplus`] and [`mish`] here use the
 //!   stable form `relu(x) + log(1 + exp(-|x|))`.
@@ -48,8 +49,19 @@ pub fn gelu(x: &Tensor) -> Result<Tensor> {
 
 /// GELU with the exact normal CDF: `0.5 x (1 + erf(x / sqrt(2)))`.
 ///
-/// Composed from `erf`, whose backward is exact (candle's fused `gelu_erf` is not).
+/// On the CPU in `f32` and `f64` this is one fused custom op whose backward,
+/// `0.5 (1 + erf(x / sqrt 2)) + x exp(-x^2 / 2) / sqrt(2 pi)`, uses full-precision constants
+/// (candle's fused `gelu_erf` does not); other dtypes and devices use [`gelu_erf_composed`].
 pub fn gelu_erf(x: &Tensor) -> Result<Tensor> {
+    if super::fused::fusable(x) {
+        return Ok(super::fused::gelu_erf(x)?);
+    }
+    gelu_erf_composed(x)
+}
+
+/// [`gelu_erf`] composed from `erf` and arithmetic (exact backward, any dtype and device, and
+/// twice differentiable); the reference the fused CPU kernel is tested against.
+pub fn gelu_erf_composed(x: &Tensor) -> Result<Tensor> {
     let cdf = ((x / SQRT_2)?.erf()? + 1.0)?;
     Ok((cdf * x)?.affine(0.5, 0.0)?)
 }

@@ -16,7 +16,10 @@
 //! | [`activation`] | `relu`, `gelu`, `gelu_erf`, `silu`, `elu`, `leaky_relu`, `sigmoid`, `softplus`, `mish`, ... | [`Activation`] |
 //!
 //! The variance is the biased one (divide by `n`), as in PyTorch. Half-precision inputs are
-//! normalised in `f32` and cast back.
+//! normalised in `f32` and cast back. [`group_norm`] and [`activation::gelu_erf`] (the hot
+//! ones of the diffusion U-Nets) are fused CPU kernels with hand-written backward passes in
+//! `f32`/`f64`; their composed references stay public ([`group_norm_composed`],
+//! [`activation::gelu_erf_composed`]).
 //!
 //! ```
 //! use candle_core::{DType, Device, Module, Tensor};
@@ -37,11 +40,12 @@
 //! ```
 
 pub mod activation;
+mod fused;
 mod layers;
 mod norm;
 mod softmax;
 
 pub use activation::Activation;
 pub use layers::{GroupNorm, GroupNormConfig, LayerNorm, LayerNormConfig, RmsNorm, RmsNormConfig};
-pub use norm::{group_norm, layer_norm, rms_norm};
+pub use norm::{group_norm, group_norm_composed, layer_norm, rms_norm};
 pub use softmax::{log_softmax, softmax};

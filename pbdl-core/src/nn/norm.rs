@@ -1,4 +1,5 @@
-//! Functional normalisations composed from differentiable candle ops.
+//! Functional normalisations: composed from differentiable candle ops, except the fused
+//! CPU group norm (`super::fused`).
 
 use crate::{Error, Result};
 use candle_core::{DType, Tensor};
@@ -153,6 +154,10 @@ pub fn rms_norm(x: &Tensor, normalized_shape: &[usize], weight: Option<&Tensor>,
 /// `[channel]`) are applied. `num_groups = 1` is a layer norm over `[channel, ..]`;
 /// `num_groups = channel` is an instance norm.
 ///
+/// On the CPU in `f32` and `f64` this is one fused custom op with a hand-written backward
+/// (statistics accumulated in `f64`); other dtypes and devices use [`group_norm_composed`],
+/// which gives the same values to round-off.
+///
 /// ```
 /// use candle_core::{DType, Device};
 /// let x = pbdl_core::seed::randn((2, 6, 5), 1.0, 3.0, DType::F64, &Device::Cpu, 1)?;
@@ -169,6 +174,21 @@ pub fn group_norm(
     bias: Option<&Tensor>,
     eps: f64,
 ) -> Result<Tensor> {
+    check_group_norm(x, num_groups, weight, bias, eps)?;
+    if super::fused::fusable(x) {
+        return Ok(super::fused::group_norm(x, num_groups, weight, bias, eps)?);
+    }
+    group_norm_composed(x, num_groups, weight, bias, eps)
+}
+
+/// Checks the arguments of a group norm.
+fn check_group_norm(
+    x: &Tensor,
+    num_groups: usize,
+    weight: Option<&Tensor>,
+    bias: Option<&Tensor>,
+    eps: f64,
+) -> Result<()> {
     const OP: &str = "group_norm";
     let dims = x.dims();
     if dims.len() < 2 {
@@ -179,7 +199,7 @@ pub fn group_norm(
             got: dims.to_vec(),
         });
     }
-    let (batch, channels) = (dims[0], dims[1]);
+    let channels = dims[1];
     if num_groups == 0 || channels % num_groups != 0 {
         return Err(Error::invalid(
             OP,
@@ -189,7 +209,24 @@ pub fn group_norm(
     }
     check_eps(OP, eps)?;
     check_param(OP, "weight", weight, &[channels], x.dtype())?;
-    check_param(OP, "bias", bias, &[channels], x.dtype())?;
+    check_param(OP, "bias", bias, &[channels], x.dtype())
+}
+
+/// [`group_norm`] composed from differentiable candle ops (mean, centre, variance, divide,
+/// affine: about 8 ops forward and 20 backward, each a pass over memory into a fresh buffer).
+/// Any dtype (half precision is normalised in `f32`) and any device; it is the reference the
+/// fused CPU kernel is tested against, and the path `PBDL_NN_COMPOSED=1` selects for A/B
+/// timings.
+pub fn group_norm_composed(
+    x: &Tensor,
+    num_groups: usize,
+    weight: Option<&Tensor>,
+    bias: Option<&Tensor>,
+    eps: f64,
+) -> Result<Tensor> {
+    check_group_norm(x, num_groups, weight, bias, eps)?;
+    let dims = x.dims();
+    let (batch, channels) = (dims[0], dims[1]);
     let per_group = x.elem_count() / (batch * num_groups).max(1);
     let grouped = x.to_dtype(internal_dtype(x.dtype()))?.reshape((batch, num_groups, per_group))?;
     let y = standardise(&grouped, 2, eps)?.reshape(x.shape())?.to_dtype(x.dtype())?;
