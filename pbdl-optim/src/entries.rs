@@ -15,6 +15,8 @@
 //!   the training data span, racecar vs plain (`error` is the smallest `|cos|`, higher is better).
 //! * bench `racecar_peak`: the same for plain / orthogonality / racecar training of the paper's
 //!   BN + ReLU peak model and a small conv net on procedural peak images.
+//! * bench `racecar_digits`: racecar's one-layer MNIST setup on drawn digits (MNIST is not
+//!   downloaded): |cos| of the leading and of the two best-aligned singular vectors.
 //! * tour `hig_vs_adam`: the same on the linear chain with a short budget.
 
 use crate::hig::{run_curve_with_loss, Budget, Curve, Decomposition, HigConfig, Loss, Method};
@@ -74,6 +76,11 @@ pub fn tasks() -> CrateTasks {
                 name: "racecar_peak",
                 about: "racecar vs orthogonality vs plain on peak images, BN+ReLU MLP and conv net: |cos| of the first layer's leading singular vectors with the data's principal subspace.",
                 run: bench_racecar_peak,
+            },
+            Entry {
+                name: "racecar_digits",
+                about: "racecar's one-layer MNIST setup (784 -> 10, 2 drawn digits, official settings): |cos| of the leading and of the best-aligned singular vectors with the images' span, racecar vs plain.",
+                run: bench_racecar_digits,
             },
         ],
         stress: vec![],
@@ -399,6 +406,36 @@ fn bench_racecar_peak(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
                 peer: false,
                 threads: ctx.threads,
             });
+        }
+    }
+    Ok(rows)
+}
+
+fn bench_racecar_digits(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    use crate::racecar::mnist::{mnist_alignment_experiment, MnistConfig};
+    let seeds = if ctx.quick { 1 } else { 3 };
+    let mut rows = Vec::new();
+    for seed in 0..seeds {
+        let cfg = MnistConfig { seed, ..Default::default() };
+        let e = mnist_alignment_experiment(&cfg)?;
+        for run in [&e.racecar, &e.plain] {
+            let method = if run.lambda > 0.0 { "racecar" } else { "plain" };
+            let best = run.best_aligned(2).iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+            for (value, kind) in
+                [(run.min_cos(), "min_abs_cos_lead2_with_data_span"), (best, "min_abs_cos_best2_with_data_span")]
+            {
+                rows.push(BenchRow {
+                    case: format!("racecar_digits_seed{seed}"),
+                    method: method.into(),
+                    size: format!("784x{}_steps{}", cfg.classes, cfg.steps),
+                    seconds: run.seconds,
+                    unit: "training".into(),
+                    error: Some(value),
+                    error_kind: kind.into(),
+                    peer: false,
+                    threads: ctx.threads,
+                });
+            }
         }
     }
     Ok(rows)

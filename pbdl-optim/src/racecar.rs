@@ -23,6 +23,8 @@
 pub mod batch_norm;
 pub mod bn_mlp;
 pub mod conv_net;
+pub mod digits;
+pub mod mnist;
 pub mod ortho;
 pub mod peak;
 pub mod peak_experiment;
