@@ -3,13 +3,19 @@
 //! Case: batch 8, 32 -> 32 channels, 64x64, 3x3 kernel, padding 1, f32, on the CPU. The backward
 //! computes the gradients with respect to both the input and the weight.
 //!
-//! Run with `cargo bench -p pbdl-core --bench conv`.
+//! Depthwise cases (the 7x7 conv of the ACDM U-Net's ConvNeXt blocks): batch 16, 16 or 32
+//! channels, 64x32, 7x7 kernel, padding 3, groups = channels, f32; the direct kernel that
+//! `conv2d` runs against the im2col path it replaced (`conv_im2col`), forward and
+//! forward+backward (gradients of input, weight and bias under a dense output gradient).
+//!
+//! Run with `cargo bench -p pbdl-core --bench conv` (`-- depthwise` for the depthwise cases
+//! only).
 // criterion's macros generate undocumented functions.
 #![allow(missing_docs)]
 
 use candle_core::{DType, Device, Tensor, Var};
 use criterion::{criterion_group, Criterion};
-use pbdl_core::conv::{conv2d, Conv2dParams};
+use pbdl_core::conv::{conv2d, conv_im2col, Conv2dParams};
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -59,6 +65,60 @@ fn bench(c: &mut Criterion) {
         g.bench_function(name, |b| b.iter(|| black_box(fwd_bwd(f, &x, &w))));
     }
     g.finish();
+    depthwise(c);
+}
+
+const DW_B: usize = 16;
+const DW_K: usize = 7;
+const DW_SIZE: (usize, usize) = (64, 32);
+
+/// A depthwise convolution under test: input, weight and bias to output.
+type DwFn = fn(&Tensor, &Tensor, &Tensor) -> Tensor;
+
+fn dw_params(c: usize) -> Conv2dParams {
+    Conv2dParams::default().padding(DW_K / 2).groups(c)
+}
+
+fn dw_direct(x: &Tensor, w: &Tensor, b: &Tensor) -> Tensor {
+    conv2d(x, w, Some(b), &dw_params(x.dim(1).unwrap())).unwrap()
+}
+
+fn dw_im2col(x: &Tensor, w: &Tensor, b: &Tensor) -> Tensor {
+    conv_im2col(x, w, Some(b), &dw_params(x.dim(1).unwrap())).unwrap()
+}
+
+fn depthwise(c: &mut Criterion) {
+    let cases: [(&str, DwFn); 2] = [("direct", dw_direct), ("im2col", dw_im2col)];
+    for ch in [16, 32] {
+        let dev = Device::Cpu;
+        let (h, wd) = DW_SIZE;
+        let randn = |shape: &[usize], std: f64, seed: u64| {
+            Var::from_tensor(&pbdl_core::seed::randn(shape, 0.0, std, DType::F32, &dev, seed).unwrap()).unwrap()
+        };
+        let (x, w, b) = (randn(&[DW_B, ch, h, wd], 1.0, 2), randn(&[ch, 1, DW_K, DW_K], 0.1, 3), randn(&[ch], 0.1, 4));
+        // A dense output gradient, as in a network.
+        let r = randn(&[DW_B, ch, h, wd], 1.0, 5).as_tensor().clone();
+
+        let mut g = c.benchmark_group(format!("depthwise7x7_c{ch}_f32_fwd"));
+        g.sample_size(30).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(3));
+        for (name, f) in cases {
+            g.bench_function(name, |bch| bch.iter(|| black_box(f(x.as_tensor(), w.as_tensor(), b.as_tensor()))));
+        }
+        g.finish();
+
+        let mut g = c.benchmark_group(format!("depthwise7x7_c{ch}_f32_fwd_bwd"));
+        g.sample_size(20).warm_up_time(Duration::from_secs(1)).measurement_time(Duration::from_secs(4));
+        for (name, f) in cases {
+            g.bench_function(name, |bch| {
+                bch.iter(|| {
+                    let y = f(x.as_tensor(), w.as_tensor(), b.as_tensor());
+                    let grads = y.mul(&r).unwrap().sum_all().unwrap().backward().unwrap();
+                    black_box([&x, &w, &b].map(|v| grads.get(v.as_tensor()).unwrap().clone()))
+                })
+            });
+        }
+        g.finish();
+    }
 }
 
 criterion_group!(benches, bench);

@@ -8,6 +8,7 @@
 //! `<ggx, grad_input(gy, w)> = <conv(ggx, w), gy>` and
 //! `<ggw, grad_weight(x, gy)> = <conv(x, ggw), gy>`, so second derivatives come for free.
 
+use super::depthwise;
 use super::forward::{conv_tensor, zeros_like};
 use super::geometry::{expect_shape, Geometry};
 use super::im2col::Plan;
@@ -22,6 +23,9 @@ use rayon::prelude::*;
 /// Each (image, group) unit owns a contiguous block of `gx`, so units run in parallel; the
 /// tiles of one unit overlap in `gx` and run one after the other.
 pub(crate) fn conv_grad_input<T: Real>(g: &Geometry, gy: &[T], w: &[T], gx: &mut [T]) {
+    if depthwise::handles(g) {
+        return depthwise::grad_input(g, gy, w, gx);
+    }
     let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
     let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);
     let units = g.batch * g.groups;
@@ -57,6 +61,9 @@ pub(crate) fn conv_grad_input<T: Real>(g: &Geometry, gy: &[T], w: &[T], gx: &mut
 /// accumulator and the accumulators are added in order, so the result does not depend on
 /// scheduling.
 pub(crate) fn conv_grad_weight<T: Real>(g: &Geometry, x: &[T], gy: &[T], gw: &mut [T]) {
+    if depthwise::handles(g) {
+        return depthwise::grad_weight(g, x, gy, gw);
+    }
     let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
     let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);
     let units = g.batch * g.groups;

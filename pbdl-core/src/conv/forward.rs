@@ -1,6 +1,7 @@
 //! The forward convolution: im2col per tile, then one matrix product per channel group.
 
 use super::backward::{grad_input_tensor, grad_weight_tensor};
+use super::depthwise;
 use super::geometry::{expect_shape, Geometry};
 use super::im2col::Plan;
 use super::matmul::{matmul, split, Mat};
@@ -14,6 +15,9 @@ use rayon::prelude::*;
 /// Work is split into (image, group) units; each unit writes its own contiguous block of `y`,
 /// so units run in parallel.
 pub(crate) fn conv_forward<T: Real>(g: &Geometry, x: &[T], w: &[T], y: &mut [T]) {
+    if depthwise::handles(g) {
+        return depthwise::forward(g, x, w, None, y);
+    }
     let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
     let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);
     let units = g.batch * g.groups;

@@ -26,6 +26,8 @@ pub(crate) struct Geometry {
     pub padding: [usize; 3],
     pub dilation: [usize; 3],
     pub circular: bool,
+    /// Whether geometries the direct depthwise kernels handle use them (otherwise im2col).
+    pub direct: bool,
 }
 
 fn axes_layout(n: usize) -> &'static str {
@@ -125,6 +127,7 @@ impl Geometry {
             padding: [0; 3],
             dilation: [1; 3],
             circular: p.padding_mode == PaddingMode::Circular,
+            direct: super::depthwise::direct_by_default(),
         };
         let p3 = p.to_3d();
         let off = 3 - N;

@@ -7,7 +7,9 @@
 //!
 //! Every convolution runs as a 3D one (1D and 2D get singleton axes): the input is gathered
 //! tile by tile into an im2col matrix and multiplied with the weight by the `gemm` crate, in
-//! parallel over images and channel groups. The gradients with respect to the input (a
+//! parallel over images and channel groups. Depthwise convolutions (one input and one output
+//! channel per group, as in ConvNeXt blocks) skip im2col: direct kernels slide the kernel over a
+//! padded copy of each channel. The gradients with respect to the input (a
 //! transposed convolution, via col2im) and the weight are ops of their own and differentiable
 //! again, so second derivatives are available wherever candle keeps the gradient graph (it
 //! detaches gradients of intermediate nodes unless `CANDLE_GRAD_DO_NOT_DETACH=1`).
@@ -35,6 +37,7 @@
 //! ```
 
 mod backward;
+mod depthwise;
 mod forward;
 mod geometry;
 mod im2col;
@@ -69,8 +72,42 @@ pub fn conv<const N: usize>(
     bias: Option<&Tensor>,
     params: &ConvParams<N>,
 ) -> Result<Tensor> {
+    conv_with(x, weight, bias, params, None)
+}
+
+/// [`conv`] forced onto the im2col + matrix-product path even where a direct kernel exists
+/// (depthwise convolutions), for its gradients too; for tests and benchmarks that compare the
+/// two paths.
+#[doc(hidden)]
+pub fn conv_im2col<const N: usize>(
+    x: &Tensor,
+    weight: &Tensor,
+    bias: Option<&Tensor>,
+    params: &ConvParams<N>,
+) -> Result<Tensor> {
+    conv_with(x, weight, bias, params, Some(false))
+}
+
+/// Whether [`conv`] runs the direct depthwise kernels for an input of shape `x`, a weight of
+/// shape `w` and `params` (the shapes must be valid), rather than im2col.
+#[doc(hidden)]
+pub fn uses_direct_kernel<const N: usize>(x: &[usize], w: &[usize], params: &ConvParams<N>) -> Result<bool> {
+    Ok(depthwise::handles(&Geometry::new("conv::uses_direct_kernel", x, w, params)?))
+}
+
+/// [`conv`], with `direct` overriding whether direct kernels may be used.
+fn conv_with<const N: usize>(
+    x: &Tensor,
+    weight: &Tensor,
+    bias: Option<&Tensor>,
+    params: &ConvParams<N>,
+    direct: Option<bool>,
+) -> Result<Tensor> {
     const OP: &str = "conv";
-    let geo = Geometry::new(OP, x.dims(), weight.dims(), params)?;
+    let mut geo = Geometry::new(OP, x.dims(), weight.dims(), params)?;
+    if let Some(d) = direct {
+        geo.direct = d;
+    }
     if !x.device().is_cpu() || !weight.device().is_cpu() || bias.is_some_and(|b| !b.device().is_cpu()) {
         return Err(Error::invalid(
             OP,
@@ -105,6 +142,9 @@ pub fn conv<const N: usize>(
                 got: b.dtype(),
             });
         }
+    }
+    if let (Some(b), true) = (bias, depthwise::handles(&geo)) {
+        return Ok(depthwise::conv_bias_tensor(&geo, x, weight, b)?);
     }
     let y = forward::conv_tensor(&geo, x, weight)?;
     Ok(match bias {
