@@ -10,6 +10,7 @@
 //! | [`physics`] | the [`Physics`] drift trait (candle, differentiable) and the toy drifts |
 //! | [`sde`] | the toy SDE and its seeded, batched Euler-Maruyama simulator |
 //! | [`analytic`] | closed-form score and posterior of the affine toy; the digest's posterior table |
+//! | [`euler_law`] | the exact law of the toy's Euler chain on a grid: score, 1-step loss minimiser, posterior |
 //! | [`mlp`] | the toy's `f64` score MLP with hand-written backpropagation, and Adam |
 //! | [`loss`] | the 1-step loss (with the regulariser) and the multi-step loss, with gradients |
 //! | [`sampler`] | reverse-SDE and probability-flow samplers, posterior and hit-rate evaluation |
@@ -19,6 +20,7 @@
 //! | [`toy`] | training the toy score network (stages, sliding windows); score error vs analytic |
 pub mod analytic;
 pub(crate) mod entries;
+pub mod euler_law;
 pub mod heat;
 pub mod heat_net;
 pub mod heat_train;
