@@ -2,6 +2,11 @@
 //!
 //! `cargo run -p pbdl-diffusion --example acdm_eval -- METHOD DIM CHECKPOINT_DIR [STEPS] [SAMPLER] [SAMPLES]`
 //! (METHOD as in `acdm_train`; SAMPLER `ddpm` or `ddimK`). Prints one markdown row per Re.
+
+// candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (fewer page faults).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use pbdl_diffusion::acdm::benchmark::Benchmark;
 use pbdl_diffusion::acdm::data::TEST_RE;
 use pbdl_diffusion::acdm::eval::{evaluate, EvalConfig, EvalReport};

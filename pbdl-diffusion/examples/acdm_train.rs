@@ -2,6 +2,11 @@
 //!
 //! `cargo run -p pbdl-diffusion --example acdm_train -- METHOD DIM STEPS [BATCH]`, METHOD one of
 //! `acdm`, `acdm_ncn`, `unet`, `unet_ut8`, `unet_tn`. Checkpoints: `target/pbdl/acdm/runs/<name>_d<DIM>/`.
+
+// candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (fewer page faults).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use pbdl_diffusion::acdm::data::{default_cache_dir, train_config, CylinderDataset, Normalization, TRAIN_RE};
 use pbdl_diffusion::acdm::model::{Method, Model, ModelConfig};
 use pbdl_diffusion::acdm::train::{train, TrainConfig};

@@ -5,6 +5,10 @@
 //! `cargo run -p pbdl-diffusion --example unet_profile -- [dim] [batch] [reps] [height] [width]`
 //! (defaults 16 16 3 64 32).
 
+// candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (fewer page faults).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
 use pbdl_core::conv::{conv2d, Conv2dParams};
