@@ -12,6 +12,10 @@
 //! |ds/dt| stays within 0.5-2x of the truth and its Strouhal number within 10%; the small
 //! one-step U-Net drifts or damps (fails one of these); 5 posterior samples have non-zero spread.
 
+// candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (fewer page faults).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use pbdl_diffusion::acdm::benchmark::Benchmark;
 use pbdl_diffusion::acdm::data::TEST_RE;
 use pbdl_diffusion::acdm::eval::{evaluate, EvalConfig, EvalReport};
