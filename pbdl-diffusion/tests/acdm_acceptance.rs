@@ -11,6 +11,13 @@
 //! Acceptance (the issue): on held-out Re, ACDM stays finite over the rollout, its mean
 //! |ds/dt| stays within 0.5-2x of the truth and its Strouhal number within 10%; the small
 //! one-step U-Net drifts or damps (fails one of these); 5 posterior samples have non-zero spread.
+//!
+//! First complete ACDM training (2026-11-22, release, idle machine, `RAYON_NUM_THREADS=2`):
+//! ACDM 48 wide, updates 100..1000 at 1.60 s each, epsilon loss 0.30 -> 0.019; DDPM (R = 20)
+//! rollouts of 1000 frames at ~1.05 s per frame. **FAILS**: Re 100 finite, |ds/dt| ratio 5.6
+//! (2.11 vs 0.38), Strouhal 0.367 vs 0.299 (22.6%); Re 950 finite, ratio 2.30, Strouhal 5.4%;
+//! spread of 5 samples over 20 frames 0.27 (non-zero: passes). The rollouts are finite but too
+//! unsteady: 1000 updates of batch 16 are far from the official training length.
 
 // candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (fewer page faults).
 #[global_allocator]
