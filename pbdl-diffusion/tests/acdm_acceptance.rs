@@ -17,7 +17,10 @@
 //! rollouts of 1000 frames at ~1.05 s per frame. **FAILS**: Re 100 finite, |ds/dt| ratio 5.6
 //! (2.11 vs 0.38), Strouhal 0.367 vs 0.299 (22.6%); Re 950 finite, ratio 2.30, Strouhal 5.4%;
 //! spread of 5 samples over 20 frames 0.27 (non-zero: passes). The rollouts are finite but too
-//! unsteady: 1000 updates of batch 16 are far from the official training length.
+//! unsteady: 1000 updates of batch 16 are far from the official training length. The one-step
+//! U-Net (16 wide, 1000 updates at 0.50 s) fails as the issue expects: finite, |ds/dt| ratio
+//! 1.43 / 0.98, but Strouhal 58% / 67% off (its shedding slows to 0.125 / 0.097); its MSE is
+//! lower (0.87 / 1.58 vs 2.75 / 2.32), its LSiM higher (0.59-1.03 vs 0.51-0.74).
 
 // candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (fewer page faults).
 #[global_allocator]
