@@ -223,10 +223,6 @@ fn run(
 
 /// The end states `x_0` of `sampler` started at `y` (at `t = T`).
 pub fn sample(sde: &ToySde, score: &impl ScalarScore, y: &[f64], sampler: Sampler, seed: u64) -> Result<Vec<f64>> {
-    sde.validate()?;
-    if y.is_empty() {
-        return Ok(vec![]);
-    }
     sample_with(sde, score, y, sampler, SamplerOptions::default(), seed)
 }
 
@@ -254,10 +250,6 @@ pub fn sample_trajectories(
     sampler: Sampler,
     seed: u64,
 ) -> Result<Vec<Vec<f64>>> {
-    sde.validate()?;
-    if y.is_empty() {
-        return Ok(vec![]);
-    }
     sample_trajectories_with(sde, score, y, sampler, SamplerOptions::default(), seed)
 }
 
