@@ -1,7 +1,8 @@
 //! Trains one ACDM benchmark model on the cached cylinder data and prints its step time.
 //!
 //! `cargo run -p pbdl-diffusion --example acdm_train -- METHOD DIM STEPS [BATCH]`, METHOD one of
-//! `acdm`, `acdm_ncn`, `unet`, `unet_ut8`, `unet_tn`. Checkpoints: `target/pbdl/acdm/runs/<name>_d<DIM>/`.
+//! `acdm`, `acdm_ncn`, `unet`, `unet_ut8`, `unet_tn`. Checkpoints: `target/pbdl/acdm/runs/<name>_d<DIM>/`
+//! (or `PBDL_ACDM_RUN_DIR`); Adam at 1e-3 for 1000 updates, then 1e-4 (`TrainConfig::default`).
 
 // candle allocates every op output afresh; mimalloc keeps those blocks out of mmap (fewer page faults).
 #[global_allocator]
@@ -50,6 +51,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let model = Model::new(ModelConfig { method, dim, diffusion_steps: 20 })?;
     let dir = default_cache_dir().join("runs").join(format!("{}_d{dim}", method.name()));
     let cfg = TrainConfig { steps, batch, checkpoint_every: 25, ..Default::default() };
+    let dir = match std::env::var("PBDL_ACDM_RUN_DIR") {
+        Ok(d) => std::path::PathBuf::from(d),
+        Err(_) => dir,
+    };
     let r = train(&model, &seqs, &cfg, Some(&dir))?;
     let first = r.losses.iter().take(20).map(|l| l.1).sum::<f64>() / r.losses.len().clamp(1, 20) as f64;
     let last = r.losses.iter().rev().take(50).map(|l| l.1).sum::<f64>() / r.losses.len().clamp(1, 50) as f64;

@@ -179,3 +179,46 @@ fn every_method_trains_one_step_and_resumes_from_its_checkpoint() {
     let w = sample_windows(&seqs, 2, 1, &mut pbdl_core::seed::rng(0)).unwrap();
     assert!(matches!(loss(&model, &w, 0), Err(Error::ShapeMismatch { .. })));
 }
+
+#[test]
+fn learning_rate_drops_to_the_late_rate_and_bad_rates_are_refused() {
+    let cfg = TrainConfig { lr: 1e-3, lr_late_from: 3, lr_late: 1e-4, ..Default::default() };
+    let rates: Vec<f64> = (0..5).map(|s| cfg.lr_at(s)).collect();
+    assert_eq!(rates, vec![1e-3, 1e-3, 1e-3, 1e-4, 1e-4]);
+    let never = TrainConfig { lr_late_from: 0, ..cfg.clone() };
+    assert_eq!(never.lr_at(1_000_000), 1e-3);
+    // Within one run: at a late rate of 1e-30 Adam's steps vanish in f32, so the weights stop
+    // changing exactly where the late rate begins.
+    let (d, norm) = tiny();
+    let full = norm.normalize(&d.sequences[0]).unwrap();
+    let seqs = vec![full.narrow(0, 0, 12).unwrap().narrow(2, 8, 16).unwrap().narrow(3, 0, 32).unwrap()];
+    let weights = |m: &Model| -> Vec<f32> {
+        let mut v: Vec<(String, Vec<f32>)> = m
+            .varmap()
+            .data()
+            .lock()
+            .unwrap()
+            .iter()
+            .map(|(k, var)| (k.clone(), var.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap()))
+            .collect();
+        v.sort_by(|a, b| a.0.cmp(&b.0));
+        v.into_iter().flat_map(|(_, w)| w).collect()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let cfg =
+        TrainConfig { steps: 4, batch: 2, lr_late_from: 2, lr_late: 1e-30, checkpoint_every: 1, ..Default::default() };
+    train(&Model::new(ModelConfig::baseline(Method::Unet, 4)).unwrap(), &seqs, &cfg, Some(dir.path())).unwrap();
+    let at = |step: usize| {
+        let m = Model::new(ModelConfig::baseline(Method::Unet, 4)).unwrap();
+        pbdl_core::io::load_varmap(dir.path().join(format!("step-{step}.safetensors")), m.varmap()).unwrap();
+        weights(&m)
+    };
+    let max_diff = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+    let moved = max_diff(&at(1), &at(2));
+    let frozen = max_diff(&at(2), &at(4));
+    assert!(moved > 1e-4, "update 2 runs at lr 1e-3 and must move the weights ({moved:e})");
+    assert!(frozen == 0.0, "updates 3 and 4 run at the late rate 1e-30: weights moved by {frozen:e}");
+    let bad = TrainConfig { steps: 1, batch: 2, lr_late_from: 1, lr_late: f64::NAN, ..Default::default() };
+    let model = Model::new(ModelConfig::baseline(Method::Unet, 4)).unwrap();
+    assert!(matches!(train(&model, &seqs, &bad, None), Err(Error::InvalidConfig { name: "lr_late", .. })));
+}

@@ -6,6 +6,7 @@ use super::model::{Method, Model};
 use crate::ddpm::Loss;
 use crate::{Error, Result};
 use candle_core::{Tensor, D};
+use candle_nn::Optimizer as _;
 use pbdl_core::io::{latest_checkpoint, save_varmap, CheckpointMeta};
 use pbdl_core::train::{train_step, AdamConfig, ClipConfig, NanGuard, OptimizerConfig, Progress, ScalarLog};
 use rand::Rng;
@@ -19,8 +20,16 @@ pub struct TrainConfig {
     pub steps: usize,
     /// Windows per update.
     pub batch: usize,
-    /// Adam learning rate.
+    /// Adam learning rate of the first `lr_late_from` updates.
     pub lr: f64,
+    /// The update from which Adam runs at `lr_late` (0: never). CPU runs start fast at `lr` and
+    /// then drop to the official 1e-4: at 1e-3 the noise prediction jitters too much to sample
+    /// cleanly (measured: one-step sample error 0.43 at 1075 updates, 0.14 after 100 more at 1e-4).
+    #[serde(default)]
+    pub lr_late_from: usize,
+    /// The learning rate from `lr_late_from` on.
+    #[serde(default = "official_lr")]
+    pub lr_late: f64,
     /// Global gradient-norm clip.
     pub clip_norm: f64,
     /// Seed of window selection and noise.
@@ -29,13 +38,36 @@ pub struct TrainConfig {
     pub checkpoint_every: usize,
 }
 
+/// The official ACDM learning rate.
+fn official_lr() -> f64 {
+    1e-4
+}
+
 impl Default for TrainConfig {
     fn default() -> Self {
-        Self { steps: 2000, batch: 16, lr: 1e-3, clip_norm: 1.0, seed: 0, checkpoint_every: 250 }
+        Self {
+            steps: 2000,
+            batch: 16,
+            lr: 1e-3,
+            lr_late_from: 1000,
+            lr_late: official_lr(),
+            clip_norm: 1.0,
+            seed: 0,
+            checkpoint_every: 250,
+        }
     }
 }
 
 impl TrainConfig {
+    /// The learning rate of update `step` (0-based).
+    pub fn lr_at(&self, step: u64) -> f64 {
+        if self.lr_late_from > 0 && step >= self.lr_late_from as u64 {
+            self.lr_late
+        } else {
+            self.lr
+        }
+    }
+
     fn validate(&self) -> Result<()> {
         let bad = |name, value: String, hint| Err(Error::InvalidConfig { name, value, hint });
         if self.batch == 0 {
@@ -43,6 +75,9 @@ impl TrainConfig {
         }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
             return bad("lr", self.lr.to_string(), "use a positive finite learning rate, e.g. 1e-3");
+        }
+        if self.lr_late_from > 0 && !(self.lr_late > 0.0 && self.lr_late.is_finite()) {
+            return bad("lr_late", self.lr_late.to_string(), "use a positive finite late learning rate, e.g. 1e-4");
         }
         if self.clip_norm.is_nan() || self.clip_norm <= 0.0 {
             return bad("clip_norm", self.clip_norm.to_string(), "use a positive gradient-norm bound, e.g. 1");
@@ -147,7 +182,8 @@ pub fn train(model: &Model, seqs: &[Tensor], config: &TrainConfig, dir: Option<&
         }
     }
     let vars = model.varmap().all_vars();
-    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: config.lr, ..Default::default() }).build(vars.clone())?;
+    let mut opt =
+        OptimizerConfig::Adam(AdamConfig { lr: config.lr_at(start), ..Default::default() }).build(vars.clone())?;
     let clip = ClipConfig::Norm { max_norm: config.clip_norm };
     let mut guard = NanGuard::new();
     let mut log = None;
@@ -167,6 +203,7 @@ pub fn train(model: &Model, seqs: &[Tensor], config: &TrainConfig, dir: Option<&
     let t0 = std::time::Instant::now();
     let mut losses = Vec::new();
     for step in start..config.steps as u64 {
+        opt.set_learning_rate(config.lr_at(step));
         let w = sample_windows(seqs, len, config.batch, &mut rng)?;
         let l = loss(model, &w, rng.random())?;
         let info = train_step(step, &l, &mut opt, &vars, &clip, &mut guard)?;
