@@ -171,6 +171,59 @@ pub struct TrainSchedule {
     pub eval_every: usize,
 }
 
+impl TrainSchedule {
+    /// The paper's optimiser settings, shared by the cart-pole, guidance and quantum-control
+    /// experiments: no clipping, Adam with learning rate `1e-3`, batches of 8, and the test loss
+    /// evaluated every tenth of the `iterations` steps (at least every step).
+    pub fn paper(mode: GradientMode, iterations: usize) -> Self {
+        Self { mode, clip: ClipConfig::None, lr: 1e-3, batch: 8, iterations, eval_every: (iterations / 10).max(1) }
+    }
+}
+
+/// Implements `schedule()` for an experiment's config struct that has the six fields of
+/// [`TrainSchedule`] (`mode`, `clip`, `lr`, `batch`, `iterations`, `eval_every`).
+macro_rules! impl_schedule {
+    ($config:ty) => {
+        impl $config {
+            /// The optimiser side of this run.
+            pub fn schedule(&self) -> $crate::bptt::TrainSchedule {
+                $crate::bptt::TrainSchedule {
+                    mode: self.mode,
+                    clip: self.clip,
+                    lr: self.lr,
+                    batch: self.batch,
+                    iterations: self.iterations,
+                    eval_every: self.eval_every,
+                }
+            }
+        }
+    };
+}
+pub(crate) use impl_schedule;
+
+/// The paper's settings of an experiment's config struct (used as the body of its `new`):
+/// [`TrainSchedule::paper`]`(mode, iterations)` for the six schedule fields, 256 training and
+/// 256 test episodes, seed 42, and the experiment's own fields as given,
+/// `paper_config!(mode, iterations, { physics: ..., width: ... })`.
+macro_rules! paper_config {
+    ($mode:expr, $iterations:expr, { $($field:ident: $value:expr),* $(,)? }) => {{
+        let schedule = $crate::bptt::TrainSchedule::paper($mode, $iterations);
+        Self {
+            mode: schedule.mode,
+            clip: schedule.clip,
+            lr: schedule.lr,
+            batch: schedule.batch,
+            iterations: schedule.iterations,
+            eval_every: schedule.eval_every,
+            train: 256,
+            test: 256,
+            seed: 42,
+            $($field: $value,)*
+        }
+    }};
+}
+pub(crate) use paper_config;
+
 /// A rollout and its loss, as [`gradients`] takes them.
 pub struct Rollout<'a> {
     /// Steps of an episode.

@@ -138,35 +138,11 @@ pub struct CartPoleConfig {
 impl CartPoleConfig {
     /// The paper's settings for `poles` poles and `mode`, with `iterations` optimizer steps.
     pub fn new(poles: usize, mode: GradientMode, iterations: usize) -> Self {
-        Self {
-            physics: CartPole::new(poles),
-            mode,
-            clip: ClipConfig::None,
-            lr: 1e-3,
-            batch: 8,
-            train: 256,
-            test: 256,
-            iterations,
-            eval_every: (iterations / 10).max(1),
-            width: 100,
-            seed: 42,
-        }
+        crate::bptt::paper_config!(mode, iterations, { physics: CartPole::new(poles), width: 100 })
     }
 }
 
-impl CartPoleConfig {
-    /// The optimiser side of this run.
-    pub fn schedule(&self) -> crate::bptt::TrainSchedule {
-        crate::bptt::TrainSchedule {
-            mode: self.mode,
-            clip: self.clip,
-            lr: self.lr,
-            batch: self.batch,
-            iterations: self.iterations,
-            eval_every: self.eval_every,
-        }
-    }
-}
+crate::bptt::impl_schedule!(CartPoleConfig);
 
 /// What a cart-pole run measured (test loss `1 - mean cos th`).
 pub type CartPoleRun = crate::bptt::BpttRun;

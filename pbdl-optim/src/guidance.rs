@@ -308,36 +308,11 @@ pub struct GuidanceConfig {
 impl GuidanceConfig {
     /// The paper's settings (2 drivers, 4 evaders) for `rc` and `mode`, with `iterations` steps.
     pub fn new(rc: f64, mode: GradientMode, iterations: usize) -> Self {
-        Self {
-            physics: Guidance::default(),
-            rc,
-            mode,
-            clip: ClipConfig::None,
-            lr: 1e-3,
-            batch: 8,
-            train: 256,
-            test: 256,
-            iterations,
-            eval_every: (iterations / 10).max(1),
-            width: 100,
-            seed: 42,
-        }
+        crate::bptt::paper_config!(mode, iterations, { physics: Guidance::default(), rc: rc, width: 100 })
     }
 }
 
-impl GuidanceConfig {
-    /// The optimiser side of this run.
-    pub fn schedule(&self) -> crate::bptt::TrainSchedule {
-        crate::bptt::TrainSchedule {
-            mode: self.mode,
-            clip: self.clip,
-            lr: self.lr,
-            batch: self.batch,
-            iterations: self.iterations,
-            eval_every: self.eval_every,
-        }
-    }
-}
+crate::bptt::impl_schedule!(GuidanceConfig);
 
 /// What a guidance run measured (test loss with the control cost).
 pub type GuidanceRun = crate::bptt::BpttRun;

@@ -441,35 +441,11 @@ pub struct QuantumControlConfig {
 impl QuantumControlConfig {
     /// The paper's settings for `target` and `mode`, with `iterations` optimizer steps.
     pub fn new(target: usize, mode: GradientMode, iterations: usize) -> Self {
-        Self {
-            physics: QuantumControl::paper(target),
-            mode,
-            clip: ClipConfig::None,
-            lr: 1e-3,
-            batch: 8,
-            train: 256,
-            test: 256,
-            iterations,
-            eval_every: (iterations / 10).max(1),
-            width: 60,
-            seed: 42,
-        }
+        crate::bptt::paper_config!(mode, iterations, { physics: QuantumControl::paper(target), width: 60 })
     }
 }
 
-impl QuantumControlConfig {
-    /// The optimiser side of this run.
-    pub fn schedule(&self) -> crate::bptt::TrainSchedule {
-        crate::bptt::TrainSchedule {
-            mode: self.mode,
-            clip: self.clip,
-            lr: self.lr,
-            batch: self.batch,
-            iterations: self.iterations,
-            eval_every: self.eval_every,
-        }
-    }
-}
+crate::bptt::impl_schedule!(QuantumControlConfig);
 
 /// What a quantum-control run measured (test loss `sum_k (1 - fidelity_k)`).
 pub type QuantumControlRun = crate::bptt::BpttRun;

@@ -6,6 +6,8 @@ use pbdl_core::train::ClipConfig;
 use pbdl_optim::bptt::{gradients, GradientMode};
 use pbdl_optim::cartpole::{train, CartPole, CartPoleConfig, Controller};
 
+mod common;
+
 /// The equations of the module docs, one sample, written out in scalars.
 fn step_ref(p: &CartPole, s: &[f64], f: f64) -> Vec<f64> {
     let nc = p.poles;
@@ -76,22 +78,8 @@ fn mode_f_gradient_matches_finite_differences() {
         }
         p.loss(&s).unwrap().to_scalar::<f64>().unwrap()
     };
-    for (vi, entry) in [(0usize, 3usize), (2, 7), (4, 2), (5, 0)] {
-        let var = &net.vars()[vi];
-        let base = var.as_tensor().flatten_all().unwrap().to_vec1::<f64>().unwrap();
-        let shape = var.as_tensor().shape().clone();
-        let h = 1e-6;
-        let eval = |d: f64| {
-            let mut v = base.clone();
-            v[entry] += d;
-            var.set(&Tensor::from_vec(v, shape.clone(), &Device::Cpu).unwrap()).unwrap();
-            rollout_loss()
-        };
-        let fd = (eval(h) - eval(-h)) / (2.0 * h);
-        eval(0.0);
-        let g = out.grads.get(var.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f64>().unwrap()[entry];
-        assert!((g - fd).abs() <= 1e-6 * (1e-3 + fd.abs()), "var {vi}[{entry}]: {g} vs fd {fd}");
-    }
+    let entries = [(0, 3), (2, 7), (4, 2), (5, 0)];
+    common::check_against_central_differences(net.vars(), &out.grads, &entries, rollout_loss);
 }
 
 #[test]
@@ -104,8 +92,6 @@ fn tiny_training_runs_in_every_mode() {
         cfg.test = 16;
         cfg.eval_every = 1;
         let run = train(&cfg).unwrap();
-        assert_eq!(run.steps, vec![0, 1, 2, 3]);
-        assert!(run.test_loss.iter().all(|l| l.is_finite() && (0.0..=2.0).contains(l)));
-        assert_eq!(run.agreement.is_some(), mode == GradientMode::C);
+        common::check_tiny_run(&run, mode, |l| l.is_finite() && (0.0..=2.0).contains(&l));
     }
 }

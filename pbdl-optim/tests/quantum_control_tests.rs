@@ -8,6 +8,8 @@ use pbdl_core::{check_grad, GradCheckOptions};
 use pbdl_optim::bptt::{gradients, GradientMode};
 use pbdl_optim::quantum_control::{cn_step, train, ConvController, QuantumControl, QuantumControlConfig};
 
+mod common;
+
 fn small() -> QuantumControl {
     QuantumControl { points: 12, length: 2.0, dt: 0.0625, steps: 4, target: 3 }
 }
@@ -134,25 +136,8 @@ fn mode_f_gradient_matches_finite_differences() {
         }
         p.loss(&traj, &target).unwrap().to_scalar::<f64>().unwrap()
     };
-    let mut worst = 0.0f64;
-    for (vi, entry) in [(0usize, 0usize), (0, 17), (1, 2), (2, 11), (3, 0), (4, 3), (5, 0)] {
-        let var = &net.vars()[vi];
-        let base = var.as_tensor().flatten_all().unwrap().to_vec1::<f64>().unwrap();
-        let shape = var.as_tensor().shape().clone();
-        let h = 1e-6;
-        let eval = |d: f64| {
-            let mut v = base.clone();
-            v[entry] += d;
-            var.set(&Tensor::from_vec(v, shape.clone(), &Device::Cpu).unwrap()).unwrap();
-            rollout_loss()
-        };
-        let fd = (eval(h) - eval(-h)) / (2.0 * h);
-        eval(0.0);
-        let g = out.grads.get(var.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f64>().unwrap()[entry];
-        let rel = (g - fd).abs() / (1e-3 + fd.abs());
-        worst = worst.max(rel);
-        assert!(rel <= 1e-6, "var {vi}[{entry}]: {g} vs fd {fd}");
-    }
+    let entries = [(0, 0), (0, 17), (1, 2), (2, 11), (3, 0), (4, 3), (5, 0)];
+    let worst = common::check_against_central_differences(net.vars(), &out.grads, &entries, rollout_loss);
     println!("mode F vs central FD: worst relative error {worst:.2e}");
 }
 
@@ -166,10 +151,8 @@ fn tiny_training_runs_in_modes_f_p_c() {
         cfg.test = 16;
         cfg.eval_every = 1;
         let run = train(&cfg).unwrap();
-        assert_eq!(run.steps, vec![0, 1, 2, 3]);
         let n = cfg.physics.steps as f64;
-        assert!(run.test_loss.iter().all(|l| (0.0..=n).contains(l)), "{:?}", run.test_loss);
-        assert_eq!(run.agreement.is_some(), mode == GradientMode::C);
+        common::check_tiny_run(&run, mode, |l| (0.0..=n).contains(&l));
     }
 }
 
@@ -180,14 +163,7 @@ fn short_training_prints_mode_losses() {
     for mode in [GradientMode::F, GradientMode::P, GradientMode::C] {
         let cfg = QuantumControlConfig::new(3, mode, 32);
         let run = train(&cfg).unwrap();
-        println!(
-            "{mode:?}: test loss {:.3} -> {:.3} in {:.1} s ({:.0} ms/step), agreement {:?}",
-            run.test_loss[0],
-            run.final_loss(),
-            run.seconds,
-            1e3 * run.seconds / 32.0,
-            run.agreement
-        );
+        common::print_run(mode, &run, 32, 3, 0);
     }
 }
 
@@ -195,21 +171,7 @@ fn short_training_prints_mode_losses() {
 #[test]
 #[ignore = "the full bench entry; about 10-15 min on 2 idle cores (9 runs of 320 Adam steps of 128-step rollouts)"]
 fn bench_entry_full_prints_rows() {
-    let tasks = pbdl_optim::tasks();
-    let entry = tasks.bench.iter().find(|e| e.name == "quantum_control").expect("entry registered");
-    let out_dir = std::env::temp_dir().join("pbdl_optim_bench_quantum_control");
-    std::fs::create_dir_all(&out_dir).unwrap();
-    let ctx = pbdl_core::registry::TaskContext { out_dir, quick: false, threads: rayon::current_num_threads() };
-    for row in (entry.run)(&ctx).unwrap() {
-        println!(
-            "{} {} {}: loss {:.4} ({:.1} ms/step)",
-            row.case,
-            row.method,
-            row.size,
-            row.error.unwrap(),
-            1e3 * row.seconds
-        );
-    }
+    common::print_full_bench_entry("quantum_control");
 }
 
 /// The official runs' value-clipping variant (clip 1.0) for F and C on target 4, where

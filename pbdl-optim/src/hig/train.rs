@@ -19,6 +19,22 @@ use rayon::prelude::*;
 use std::any::Any;
 use std::time::Instant;
 
+/// Checks that `net`, `physics` and `batch` fit together and runs the network on the batch.
+/// Returns the controls `u: [b, nu]` (held in `cache`).
+fn forward_net<'c, M: JacobianModel + ?Sized>(
+    net: &M,
+    physics: &dyn Physics,
+    batch: Batch<'_>,
+    cache: &'c mut M::Cache,
+) -> Result<&'c [f64]> {
+    let (b, nu, ny, nx) = (batch.len, physics.control_dim(), physics.output_dim(), physics.context_dim());
+    check_len("network output width vs physics control length", nu, net.out_dim())?;
+    check_len("batch targets length", b * ny, batch.targets.len())?;
+    check_len("batch contexts length", b * nx, batch.contexts.len())?;
+    net.forward(batch.inputs, b, cache)?;
+    Ok(net.output(cache))
+}
+
 /// Runs the network on a batch and the physics (with its Jacobian) on every sample, in
 /// parallel. Fills `y: [b, ny]` and `jp: [b, ny, nu]`.
 fn forward_with_physics_jacobian<M: JacobianModel + ?Sized>(
@@ -30,11 +46,7 @@ fn forward_with_physics_jacobian<M: JacobianModel + ?Sized>(
     jp: &mut Vec<f64>,
 ) -> Result<()> {
     let (b, nu, ny, nx) = (batch.len, physics.control_dim(), physics.output_dim(), physics.context_dim());
-    check_len("network output width vs physics control length", nu, net.out_dim())?;
-    check_len("batch targets length", b * ny, batch.targets.len())?;
-    check_len("batch contexts length", b * nx, batch.contexts.len())?;
-    net.forward(batch.inputs, b, cache)?;
-    let u = net.output(cache);
+    let u = forward_net(net, physics, batch, cache)?;
     y.resize(b * ny, 0.0);
     jp.resize(b * ny * nu, 0.0);
     y.par_chunks_mut(ny).zip(jp.par_chunks_mut(ny * nu)).enumerate().try_for_each(|(s, (ys, js))| {
@@ -115,6 +127,24 @@ pub struct StepInfo {
     pub solve: Option<SolveInfo>,
 }
 
+impl StepInfo {
+    /// The info of step `*step`, counting the step.
+    fn next(step: &mut u64, loss: f64, solve: Option<SolveInfo>) -> Self {
+        let out = Self { step: *step, loss, solve };
+        *step += 1;
+        out
+    }
+}
+
+/// [`Error::Diverged`] at `step` when the batch loss is not finite (checked before the update).
+fn check_diverged(step: u64, loss: f64) -> Result<()> {
+    if loss.is_finite() {
+        Ok(())
+    } else {
+        Err(Error::Diverged { step, loss, last_good: step.saturating_sub(1) })
+    }
+}
+
 /// HIG (or Gauss-Newton, exponent 1) training: exact composed Jacobian, half-inverse solve,
 /// plain SGD step. Buffers are kept across steps.
 #[derive(Debug)]
@@ -183,9 +213,7 @@ impl HigTrainer {
         let cache = cache_of::<M::Cache>(&mut ws.cache);
         forward_with_physics_jacobian(&*net, physics, batch, cache, &mut ws.y, &mut ws.jp)?;
         let loss = loss_and_gradient(self.loss, &ws.y, batch.targets, batch.len, physics.output_dim(), &mut ws.g)?;
-        if !loss.is_finite() {
-            return Err(Error::Diverged { step: self.step, loss, last_good: self.step.saturating_sub(1) });
-        }
+        check_diverged(self.step, loss)?;
         let (rows, p) = (batch.len * physics.output_dim(), net.n_params());
         self.jac.resize(rows * p, 0.0);
         net.jacobian_rows(cache, &ws.jp, physics.output_dim(), &mut self.jac)?;
@@ -193,9 +221,7 @@ impl HigTrainer {
         let j = MatRef::from_row_major_slice(&self.jac, rows, p);
         let info = self.solver.solve(&self.cfg, j, &ws.g, &mut self.dtheta)?;
         net.apply_update(self.cfg.eta, &self.dtheta)?;
-        let out = StepInfo { step: self.step, loss, solve: Some(info) };
-        self.step += 1;
-        Ok(out)
+        Ok(StepInfo::next(&mut self.step, loss, Some(info)))
     }
 }
 
@@ -258,19 +284,13 @@ impl AdamTrainer {
         let ws = &mut self.ws;
         let cache = cache_of::<M::Cache>(&mut ws.cache);
         let (b, nu, ny, nx) = (batch.len, physics.control_dim(), physics.output_dim(), physics.context_dim());
-        check_len("network output width vs physics control length", nu, net.out_dim())?;
-        check_len("batch targets length", b * ny, batch.targets.len())?;
-        check_len("batch contexts length", b * nx, batch.contexts.len())?;
-        net.forward(batch.inputs, b, cache)?;
-        let u = net.output(cache);
+        let u = forward_net(&*net, physics, batch, cache)?;
         ws.y.resize(b * ny, 0.0);
         ws.y.par_chunks_mut(ny).enumerate().try_for_each(|(s, ys)| {
             physics.forward(&batch.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], ys)
         })?;
         let loss = loss_and_gradient(self.loss, &ws.y, batch.targets, b, ny, &mut ws.g)?;
-        if !loss.is_finite() {
-            return Err(Error::Diverged { step: self.step, loss, last_good: self.step.saturating_sub(1) });
-        }
+        check_diverged(self.step, loss)?;
         // Physics VJP per sample: cot_s = J_phys,s^T g_s.
         self.cot.resize(b * nu, 0.0);
         let g = &ws.g;
@@ -285,9 +305,7 @@ impl AdamTrainer {
         let surrogate = (self.theta.as_tensor() * g)?.sum_all()?;
         self.opt.backward_step(&surrogate)?;
         net.write_params(&self.theta.as_tensor().to_vec1::<f64>()?)?;
-        let out = StepInfo { step: self.step, loss, solve: None };
-        self.step += 1;
-        Ok(out)
+        Ok(StepInfo::next(&mut self.step, loss, None))
     }
 }
 
