@@ -9,9 +9,12 @@ use pbdl_diffusion::smdp::sampler::{
     SamplerOptions, ScalarScore, StepScheme,
 };
 use pbdl_diffusion::smdp::sde::ToySde;
-use pbdl_diffusion::smdp::toy::{train_toy, TimeSampling, ToyLoss, ToyTrainConfig};
+use pbdl_diffusion::smdp::toy::ToyTrainConfig;
 use std::path::PathBuf;
 use std::time::Instant;
+
+mod common;
+use common::{quadratic_reg_config, train_logged};
 
 /// The exact law of the quadratic chain reproduces the Monte Carlo statistics: `x_T` from `+1`
 /// (digest: mean 0.0036 +- 0.0005, std 0.035 +- 0.001, P(x_T < 0) = 0.456 at dt = 0.01; our
@@ -120,7 +123,6 @@ fn save(net: &ScoreMlp, path: &PathBuf) {
     std::fs::rename(&tmp, path).unwrap();
 }
 
-#[allow(dead_code)]
 fn load(path: &PathBuf) -> Option<ScoreMlp> {
     let text = std::fs::read_to_string(path).ok()?;
     let mut net = ScoreMlp::paper(0);
@@ -132,22 +134,20 @@ fn load(path: &PathBuf) -> Option<ScoreMlp> {
     Some(net)
 }
 
-/// The config of `quadratic_reg_recipe_with_consistent_sampler_steps` (regularised 1-step
-/// loss, stride 5 at lr 1e-3 then stride 1 at lr 1e-4, 250k + 250k updates, log-uniform times,
-/// data at the sampler step 0.02).
-fn reg_config() -> ToyTrainConfig {
-    let mut cfg = ToyTrainConfig {
-        log_every: 50_000,
-        sim_substeps: 1,
-        time_sampling: TimeSampling::LogUniform,
-        ..ToyTrainConfig::official(250_000, 250_000)
-    };
-    for st in &mut cfg.stages {
-        if let ToyLoss::Strided { stride, .. } = st.loss {
-            st.loss = ToyLoss::Strided { stride, bidirectional: false };
+/// The regularised 1-step model of `seed` trained on `n_paths` paths with the config of
+/// `quadratic_reg_recipe_with_consistent_sampler_steps` ([`quadratic_reg_config`]); the default
+/// model (seed 0, 2500 paths) is loaded from [`model_path`] if saved there, else trained and saved.
+fn reg_model(sde: &ToySde, seed: u64, n_paths: usize) -> ScoreMlp {
+    let default = seed == 0 && n_paths == 2500;
+    (if default { load(&model_path()) } else { None }).unwrap_or_else(|| {
+        let mut net = ScoreMlp::paper(seed);
+        let cfg = ToyTrainConfig { seed, n_paths, ..quadratic_reg_config() };
+        train_logged(sde, &mut net, &cfg, &format!("seed {seed}, {n_paths} paths: trained"));
+        if default {
+            save(&net, &model_path());
         }
-    }
-    cfg
+        net
+    })
 }
 
 /// Trains the regularised 1-step model and saves its parameters (text, one per line) for the
@@ -157,8 +157,7 @@ fn reg_config() -> ToyTrainConfig {
 fn train_and_save_quadratic_reg_model() {
     let sde = ToySde::paper_quadratic();
     let mut net = ScoreMlp::paper(0);
-    let rep = train_toy(&sde, &mut net, &reg_config()).unwrap();
-    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    train_logged(&sde, &mut net, &quadratic_reg_config(), "trained");
     save(&net, &model_path());
     println!("saved to {}", model_path().display());
 }
@@ -170,12 +169,7 @@ fn train_and_save_quadratic_reg_model() {
 #[ignore = "experiment: needs the saved model (else trains it, 7-25 minutes); measured: net within 0.8-2.4% of the exact 1-step minimiser for t <= 0.1, 5-14% for t >= 0.2, 500% from the exact score at t = 0.02; ODE/SDE hits explicit 0%/100%, implicit one-step 64%/100%, + Gaussian weight 90.2%/100%"]
 fn trained_model_against_the_exact_law() {
     let sde = ToySde::paper_quadratic();
-    let net = load(&model_path()).unwrap_or_else(|| {
-        let mut net = ScoreMlp::paper(0);
-        train_toy(&sde, &mut net, &reg_config()).unwrap();
-        save(&net, &model_path());
-        net
-    });
+    let net = reg_model(&sde, 0, 2500);
     let law = EulerChainLaw::paper_quadratic().unwrap();
     let ks: Vec<usize> = vec![1, 2, 3, 5, 10, 25, 50, 100, 250, 500];
     let vs_score = law.compare(&net, GridScoreKind::Score, &ks);
@@ -284,17 +278,7 @@ fn fine_chain_exact_score_sampler_hits() {
 /// SDE step is then the paper's explicit one. Returns (hits, worst posterior error).
 fn implicit_gaussian_acceptance(seed: u64, n_paths: usize) -> (HitReport, f64) {
     let sde = ToySde::paper_quadratic();
-    let default = seed == 0 && n_paths == 2500;
-    let net = (if default { load(&model_path()) } else { None }).unwrap_or_else(|| {
-        let mut net = ScoreMlp::paper(seed);
-        let cfg = ToyTrainConfig { seed, n_paths, ..reg_config() };
-        let rep = train_toy(&sde, &mut net, &cfg).unwrap();
-        println!("seed {seed}, {n_paths} paths: trained in {:.1} s", rep.seconds);
-        if default {
-            save(&net, &model_path());
-        }
-        net
-    });
+    let net = reg_model(&sde, seed, n_paths);
     let law = EulerChainLaw::paper_quadratic().unwrap();
     let ks = [1usize, 10, 50, 100, 250, 500];
     let err = law.compare(&net, GridScoreKind::OneStepTarget, &ks);

@@ -13,6 +13,9 @@ use pbdl_diffusion::smdp::toy::{
 };
 use std::time::Instant;
 
+mod common;
+use common::{one_directional_strides, quadratic_reg_config, train_logged};
+
 /// The digest's anchor: 400k paths give mean 0.0036 and std 0.0351 at dt = 0.02.
 #[test]
 fn quadratic_forward_simulator_matches_the_reference_statistics() {
@@ -159,13 +162,8 @@ fn affine_learned_score_matches_the_analytic_score() {
     let mut net = ScoreMlp::paper(0);
     let mut cfg = ToyTrainConfig { log_every: 50_000, sim_substeps: 1, ..ToyTrainConfig::official(100_000, 150_000) };
     cfg.stages.push(ToyStage { loss: ToyLoss::Strided { stride: 1, bidirectional: false }, lr: 1e-5, updates: 50_000 });
-    for st in &mut cfg.stages {
-        if let ToyLoss::Strided { stride, .. } = st.loss {
-            st.loss = ToyLoss::Strided { stride, bidirectional: false };
-        }
-    }
-    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
-    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    one_directional_strides(&mut cfg);
+    train_logged(&sde, &mut net, &cfg, "trained");
     let ts: Vec<f64> = (0..20).map(|i| 0.5 + 9.5 * i as f64 / 19.0).collect();
     let euler = AffineMixture::euler(0.5, 0.04, 0.02);
     let cont = affine_score_error(&net, &AffineMixture::continuous(0.5, 0.04), &ts, 400);
@@ -198,8 +196,7 @@ fn affine_with_log_uniform_times() {
     let sde = ToySde::paper_affine();
     let mut net = ScoreMlp::paper(0);
     let cfg = ToyTrainConfig { time_sampling: TimeSampling::LogUniform, ..accept_config() };
-    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
-    println!("trained in {:.1} s", rep.seconds);
+    train_logged(&sde, &mut net, &cfg, "trained");
     let ts: Vec<f64> = (0..20).map(|i| 0.5 + 9.5 * i as f64 / 19.0).collect();
     let cont = affine_score_error(&net, &AffineMixture::continuous(0.5, 0.04), &ts, 400);
     for (t, e) in &cont.per_t {
@@ -273,14 +270,12 @@ fn quadratic_posterior_and_hit_rates() {
     let sde = ToySde::paper_quadratic();
     let mut net = ScoreMlp::paper(0);
     let cfg = ToyTrainConfig { time_sampling: TimeSampling::LogUniform, ..accept_config() };
-    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
-    println!("L trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    train_logged(&sde, &mut net, &cfg, "L trained");
     let (worst_l, hits_l) = report_quadratic("L", &sde, &net);
     let mut fine = ToyTrainConfig::sliding_window(4, 2, 5, 2000, 1e-4);
     fine.log_every = 1000;
     fine.time_sampling = TimeSampling::LogUniform;
-    let rep = train_toy(&sde, &mut net, &fine).unwrap();
-    println!("M fine-tuned in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    train_logged(&sde, &mut net, &fine, "M fine-tuned");
     let (worst_m, hits_m) = report_quadratic("M", &sde, &net);
     println!("worst posterior error: L {worst_l:.3}, M {worst_m:.3}; hits L {hits_l:?}, M {hits_m:?}");
     assert!(worst_l <= 0.05, "posterior of L off by {worst_l}");
@@ -296,8 +291,7 @@ fn quadratic_posterior_and_hit_rates() {
 fn quadratic_with_uniform_times() {
     let sde = ToySde::paper_quadratic();
     let mut net = ScoreMlp::paper(0);
-    let rep = train_toy(&sde, &mut net, &accept_config()).unwrap();
-    println!("U trained in {:.1} s", rep.seconds);
+    train_logged(&sde, &mut net, &accept_config(), "U trained");
     let (worst, hits) = report_quadratic("U", &sde, &net);
     println!("U: worst posterior error {worst:.3}; {hits:?}");
 }
@@ -323,8 +317,7 @@ fn quadratic_official_recipe() {
     println!("forward: x_T from +1 mean {m:.5}, std {s:.5} (digest 0.0036 +- 0.0005, 0.035 +- 0.001)");
     let mut net = ScoreMlp::paper(0);
     let cfg = ToyTrainConfig { log_every: 50_000, ..ToyTrainConfig::official(250_000, 250_000) };
-    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
-    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    train_logged(&sde, &mut net, &cfg, "trained");
     let (worst02, hits02) = report_quadratic("data step 0.02", &sde, &net);
     let (worst, hits) = report_quadratic("notebook step 0.01", &ToySde { dt: 0.01, ..sde }, &net);
     println!("worst posterior error: step 0.02 {worst02:.3}, step 0.01 {worst:.3}; hits {hits02:?} / {hits:?}");
@@ -362,19 +355,7 @@ fn quadratic_official_recipe() {
 fn quadratic_reg_recipe_with_consistent_sampler_steps() {
     let sde = ToySde::paper_quadratic();
     let mut net = ScoreMlp::paper(0);
-    let mut cfg = ToyTrainConfig {
-        log_every: 50_000,
-        sim_substeps: 1,
-        time_sampling: TimeSampling::LogUniform,
-        ..ToyTrainConfig::official(250_000, 250_000)
-    };
-    for st in &mut cfg.stages {
-        if let ToyLoss::Strided { stride, .. } = st.loss {
-            st.loss = ToyLoss::Strided { stride, bidirectional: false };
-        }
-    }
-    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
-    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    train_logged(&sde, &mut net, &quadratic_reg_config(), "trained");
     let (worst, sde_hits) = report_quadratic("SDE step 0.02", &sde, &net);
     let (_, ode_hits) = report_quadratic("ODE step 0.01", &ToySde { dt: 0.01, ..sde }, &net);
     println!("posterior worst {worst:.3}; SDE hits (step 0.02) {sde_hits:?}; ODE hits (step 0.01) {ode_hits:?}");
@@ -402,8 +383,7 @@ fn quadratic_official_recipe_then_sliding_windows() {
     for i in 0..19 {
         cfg.stages.push(ToyStage { loss: ToyLoss::MultiStep(4 + 2 * i), lr: 1e-4, updates: 1000 });
     }
-    let rep = train_toy(&sde, &mut net, &cfg).unwrap();
-    println!("trained in {:.1} s; losses {:?}", rep.seconds, rep.losses);
+    train_logged(&sde, &mut net, &cfg, "trained");
     let (worst, hits) = report_quadratic("step 0.02", &sde, &net);
     let (_, hits01) = report_quadratic("step 0.01", &ToySde { dt: 0.01, ..sde }, &net);
     println!("posterior worst {worst:.3}; hits step 0.02 {hits:?}; step 0.01 {hits01:?}");

@@ -2,13 +2,14 @@
 //! pipeline run with a tiny network (the acceptance run is `uncertainty_wake`, ignored).
 
 use candle_core::{DType, Device, Tensor};
-use candle_nn::{VarBuilder, VarMap};
 use pbdl_diffusion::uncertainty::{
     compare, condition, diffusion, predict_stats, simulate_wake, train, Dataset, FieldStats, Normalizer, SampleConfig,
     TrainConfig, WakeCase, WakeConfig,
 };
-use pbdl_diffusion::unet::{seeded_init, AcdmUnet, AcdmUnetConfig};
+use pbdl_diffusion::unet::{AcdmUnet, AcdmUnetConfig};
 use pbdl_diffusion::Error;
+
+mod common;
 
 /// Snapshots `m + s sin(2 pi n / N + phase)`: over whole periods the mean is `m` and the
 /// population standard deviation `s / sqrt(2)` exactly.
@@ -101,11 +102,9 @@ fn a_briefly_trained_surrogate_gives_finite_statistics() {
     let norm = Normalizer::fit(&cases.iter().map(|c| &c.snapshots).collect::<Vec<_>>()).unwrap();
     let data = Dataset::new(&cfg, &cases, 5, 300.0, &norm, 0).unwrap();
     assert_eq!((data.cond.dims(), data.target.dims()), ([10, 3, 8, 8].as_slice(), [10, 2, 8, 8].as_slice()));
-    let varmap = VarMap::new();
     let config =
         AcdmUnetConfig { dim_mults: vec![1, 1], in_channels: 5, out_channels: 2, ..AcdmUnetConfig::acdm(8, 5) };
-    let net = AcdmUnet::new(config, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
-    seeded_init(&varmap, 0).unwrap();
+    let (varmap, net) = common::build_seeded(DType::F32, 0, |vb| AcdmUnet::new(config, vb));
     let d = diffusion().unwrap();
     let tc = TrainConfig { steps: 3, batch: 4, lr: 1e-3, seed: 1 };
     let losses = train(&net, varmap.all_vars(), &d, &data, &tc, |_, _| {}).unwrap();

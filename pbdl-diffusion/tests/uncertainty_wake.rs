@@ -23,13 +23,15 @@
 //! them without training; `PBDL_WAKE_POOL=2` and `PBDL_WAKE_NET=small` shrink the problem.
 
 use candle_core::{DType, Device};
-use candle_nn::{VarBuilder, VarMap};
 use pbdl_diffusion::uncertainty::{
     compare, condition, diffusion, predict_stats, simulate_wake, train, Dataset, FieldStats, Normalizer, SampleConfig,
     TrainConfig, WakeCase, WakeConfig,
 };
-use pbdl_diffusion::unet::{count_parameters, seeded_init, AifNet, AifNetConfig};
+use pbdl_diffusion::unet::{count_parameters, AifNet, AifNetConfig};
 use std::time::Instant;
+
+mod common;
+use common::build_seeded;
 
 const TRAIN_RE: [f64; 5] = [100.0, 150.0, 200.0, 250.0, 300.0];
 const TEST_RE: [f64; 6] = [120.0, 140.0, 180.0, 220.0, 260.0, 280.0];
@@ -37,6 +39,17 @@ const RE_SCALE: f64 = 300.0;
 
 fn env(name: &str, default: usize) -> usize {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+}
+
+/// The paper's 32x32 AifNet (16 * [1, 2, 4, 4], attention at levels 2 and 3) for the wake:
+/// 3 condition and 2 noisy target channels in, the 2 target fields out.
+fn wake_net() -> AifNetConfig {
+    AifNetConfig { in_channels: 5, out_channels: 2, ..AifNetConfig::airfoil_32() }
+}
+
+/// [`wake_net`] narrowed to `dim_basic * dim_multipliers`, without attention.
+fn small_wake_net(dim_basic: usize, dim_multipliers: Vec<usize>) -> AifNetConfig {
+    AifNetConfig { dim_basic, dim_multipliers, attention_layers: vec![], ..wake_net() }
 }
 
 #[test]
@@ -57,25 +70,12 @@ fn wake_surrogate_predicts_mean_and_spread_on_unseen_reynolds_numbers() {
 
     let norm = Normalizer::fit(&train_cases.iter().map(|c| &c.snapshots).collect::<Vec<_>>()).unwrap();
     let data = Dataset::new(&cfg, &train_cases, 25, RE_SCALE, &norm, 0).unwrap();
-    let varmap = VarMap::new();
-    let net_cfg = if small {
-        AifNetConfig {
-            in_channels: 5,
-            out_channels: 2,
-            dim_basic: 8,
-            dim_multipliers: vec![1, 2, 2],
-            attention_layers: vec![],
-            ..AifNetConfig::airfoil_32()
-        }
-    } else {
-        AifNetConfig { in_channels: 5, out_channels: 2, ..AifNetConfig::airfoil_32() }
-    };
+    let net_cfg = if small { small_wake_net(8, vec![1, 2, 2]) } else { wake_net() };
     let net_name = format!(
         "AifNet {} x {:?}, attention {:?}",
         net_cfg.dim_basic, net_cfg.dim_multipliers, net_cfg.attention_layers
     );
-    let net = AifNet::new(net_cfg, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
-    seeded_init(&varmap, 0).unwrap();
+    let (varmap, net) = build_seeded(DType::F32, 0, |vb| AifNet::new(net_cfg, vb));
     let d = diffusion().unwrap();
     let steps = env("PBDL_WAKE_STEPS", 4000);
     let tc = TrainConfig { steps, batch: 25, lr: 1e-3, seed: 1 };
@@ -173,37 +173,12 @@ fn network_step_times() {
     let d = diffusion().unwrap();
     let tc = TrainConfig { steps: 3, batch: 25, lr: 1e-3, seed: 1 };
     let nets: Vec<(&str, AifNetConfig)> = vec![
-        (
-            "aifnet 8x[1,2,2] no attn",
-            AifNetConfig {
-                in_channels: 5,
-                out_channels: 2,
-                dim_basic: 8,
-                dim_multipliers: vec![1, 2, 2],
-                attention_layers: vec![],
-                ..AifNetConfig::airfoil_32()
-            },
-        ),
-        (
-            "aifnet 16x[1,2,4] no attn",
-            AifNetConfig {
-                in_channels: 5,
-                out_channels: 2,
-                dim_basic: 16,
-                dim_multipliers: vec![1, 2, 4],
-                attention_layers: vec![],
-                ..AifNetConfig::airfoil_32()
-            },
-        ),
-        (
-            "aifnet 16x[1,2,4,4] attn 2,3",
-            AifNetConfig { in_channels: 5, out_channels: 2, ..AifNetConfig::airfoil_32() },
-        ),
+        ("aifnet 8x[1,2,2] no attn", small_wake_net(8, vec![1, 2, 2])),
+        ("aifnet 16x[1,2,4] no attn", small_wake_net(16, vec![1, 2, 4])),
+        ("aifnet 16x[1,2,4,4] attn 2,3", wake_net()),
     ];
     for (name, c) in nets {
-        let varmap = VarMap::new();
-        let net = AifNet::new(c, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
-        seeded_init(&varmap, 0).unwrap();
+        let (varmap, net) = build_seeded(DType::F32, 0, |vb| AifNet::new(c, vb));
         let t = Instant::now();
         train(&net, varmap.all_vars(), &d, &data, &tc, |k, _| {
             println!("  {name} step {k}: {:.2} s", t.elapsed().as_secs_f64())
@@ -211,10 +186,8 @@ fn network_step_times() {
         .unwrap();
         println!("{name} ({} params): {:.2} s/step", count_parameters(&varmap), t.elapsed().as_secs_f64() / 3.0);
     }
-    let varmap = VarMap::new();
     let c = AcdmUnetConfig { dim_mults: vec![1, 2, 2], in_channels: 5, out_channels: 2, ..AcdmUnetConfig::acdm(16, 5) };
-    let net = AcdmUnet::new(c, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
-    seeded_init(&varmap, 0).unwrap();
+    let (varmap, net) = build_seeded(DType::F32, 0, |vb| AcdmUnet::new(c, vb));
     let t = Instant::now();
     train(&net, varmap.all_vars(), &d, &data, &tc, |_, _| {}).unwrap();
     println!(

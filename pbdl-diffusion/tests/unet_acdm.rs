@@ -2,30 +2,21 @@
 //! finite-difference gradients through a tiny network in f64, attention, GroupNorm and the
 //! step embedding against direct loops, checkpoint round trip, and typed errors.
 
-use candle_core::{DType, Device, Tensor};
+use candle_core::{DType, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use pbdl_core::io::{load_varmap, save_varmap, CheckpointMeta};
-use pbdl_core::{check_grad, seed, GradCheckOptions};
 use pbdl_diffusion::ddpm::NoisePredictor;
 use pbdl_diffusion::unet::{
     count_parameters, seeded_init, sinusoidal_embedding, AcdmUnet, AcdmUnetConfig, Attention, AttentionKind,
     ResidualAttention,
 };
 use pbdl_diffusion::Error;
-use std::collections::HashMap;
-use std::time::Instant;
 
-const CPU: Device = Device::Cpu;
+mod common;
+use common::{randn, CPU};
 
 fn build(config: AcdmUnetConfig, dtype: DType, seed: u64) -> (VarMap, AcdmUnet) {
-    let varmap = VarMap::new();
-    let net = AcdmUnet::new(config, VarBuilder::from_varmap(&varmap, dtype, &CPU)).unwrap();
-    seeded_init(&varmap, seed).unwrap();
-    (varmap, net)
-}
-
-fn randn(shape: &[usize], dtype: DType, s: u64) -> Tensor {
-    seed::randn(shape, 0.0, 1.0, dtype, &CPU, s).unwrap()
+    common::build_seeded(dtype, seed, |vb| AcdmUnet::new(config, vb))
 }
 
 fn to_vec(t: &Tensor) -> Vec<f64> {
@@ -100,8 +91,6 @@ fn step_embedding_is_used_only_when_configured() {
 fn gradients_match_finite_differences_through_a_tiny_network() {
     let config = AcdmUnetConfig::acdm(8, 3);
     let (varmap, _) = build(config.clone(), DType::F64, 7);
-    let all: HashMap<String, Tensor> =
-        varmap.data().lock().unwrap().iter().map(|(k, v)| (k.clone(), v.as_tensor().clone())).collect();
     let probed = [
         "init_conv.weight",              // 7x7 conv
         "downs.0.0.mlp.1.weight",        // step-embedding projection
@@ -115,30 +104,9 @@ fn gradients_match_finite_differences_through_a_tiny_network() {
     ];
     let x = randn(&[2, 3, 16, 8], DType::F64, 8);
     let t = Tensor::new(&[3f64, 11.0], &CPU).unwrap();
-    let mut inputs = vec![x];
-    inputs.extend(probed.iter().map(|n| all[*n].clone()));
-    let f = |xs: &[Tensor]| -> candle_core::Result<Tensor> {
-        let mut map = all.clone();
-        for (name, value) in probed.iter().zip(&xs[1..]) {
-            map.insert(name.to_string(), value.clone());
-        }
-        let net = AcdmUnet::new(config.clone(), VarBuilder::from_tensors(map, DType::F64, &CPU))
-            .map_err(|e| candle_core::Error::Msg(e.to_string()))?;
-        net.forward(&xs[0], Some(&t)).map_err(|e| candle_core::Error::Msg(e.to_string()))
-    };
-    let start = Instant::now();
-    // Step 1e-4: at the default 1e-6 round-off dominates (measured max rel error 8.7e-7, 7.8e-8,
-    // 8.4e-9 at eps 1e-6, 1e-5, 1e-4: it falls like 1/eps, so the gradient itself is right).
-    let opts = GradCheckOptions { max_probes: 16, eps: 1e-4, ..Default::default() };
-    let report = check_grad(f, &inputs, &opts).unwrap();
-    println!(
-        "FD check ({} probes, {:.1} s): max rel error {:.2e}; per input (x, {}): {:?}",
-        report.probes,
-        start.elapsed().as_secs_f64(),
-        report.max_rel_error,
-        probed.join(", "),
-        report.per_input.iter().map(|e| format!("{e:.1e}")).collect::<Vec<_>>()
-    );
+    let report = common::check_network_grad("ACDM U-Net", &varmap, &probed, x, |vb, x| {
+        AcdmUnet::new(config.clone(), vb)?.forward(x, Some(&t))
+    });
     assert!(report.max_rel_error < 1e-6, "{report:?}");
 }
 

@@ -3,26 +3,18 @@
 //! network in f64, and typed errors. The official repository prints no parameter count, so
 //! the counts are reported, not asserted.
 
-use candle_core::{DType, Device, Tensor};
+use candle_core::{DType, Tensor};
 use candle_nn::{VarBuilder, VarMap};
-use pbdl_core::{check_grad, seed, GradCheckOptions};
 use pbdl_diffusion::ddpm::NoisePredictor;
-use pbdl_diffusion::unet::{count_parameters, seeded_init, AifNet, AifNetConfig};
+use pbdl_diffusion::unet::{count_parameters, AifNet, AifNetConfig};
 use pbdl_diffusion::Error;
-use std::collections::HashMap;
 use std::time::Instant;
 
-const CPU: Device = Device::Cpu;
+mod common;
+use common::{randn, CPU};
 
 fn build(config: AifNetConfig, dtype: DType, s: u64) -> (VarMap, AifNet) {
-    let varmap = VarMap::new();
-    let net = AifNet::new(config, VarBuilder::from_varmap(&varmap, dtype, &CPU)).unwrap();
-    seeded_init(&varmap, s).unwrap();
-    (varmap, net)
-}
-
-fn randn(shape: &[usize], dtype: DType, s: u64) -> Tensor {
-    seed::randn(shape, 0.0, 1.0, dtype, &CPU, s).unwrap()
+    common::build_seeded(dtype, s, |vb| AifNet::new(config, vb))
 }
 
 fn check_shape(name: &str, config: AifNetConfig, n: usize) {
@@ -88,8 +80,6 @@ fn gradients_match_finite_differences_through_a_tiny_network() {
         ..AifNetConfig::airfoil_32()
     };
     let (varmap, _) = build(config.clone(), DType::F64, 4);
-    let all: HashMap<String, Tensor> =
-        varmap.data().lock().unwrap().iter().map(|(k, v)| (k.clone(), v.as_tensor().clone())).collect();
     let probed = [
         "initial_layer.weight",
         "down_nets.0.0.net.0.timeEmb.linear1.weight",
@@ -103,28 +93,9 @@ fn gradients_match_finite_differences_through_a_tiny_network() {
     ];
     let x = randn(&[2, 6, 8, 8], DType::F64, 5);
     let t = Tensor::new(&[1f64, 150.0], &CPU).unwrap();
-    let mut inputs = vec![x];
-    inputs.extend(probed.iter().map(|n| all[*n].clone()));
-    let f = |xs: &[Tensor]| -> candle_core::Result<Tensor> {
-        let mut map = all.clone();
-        for (name, value) in probed.iter().zip(&xs[1..]) {
-            map.insert(name.to_string(), value.clone());
-        }
-        let net = AifNet::new(config.clone(), VarBuilder::from_tensors(map, DType::F64, &CPU))
-            .map_err(|e| candle_core::Error::Msg(e.to_string()))?;
-        net.forward(&xs[0], &t).map_err(|e| candle_core::Error::Msg(e.to_string()))
-    };
-    let start = Instant::now();
-    // Step 1e-4 as in the ACDM test (round-off dominates at 1e-6 through a whole network).
-    let opts = GradCheckOptions { max_probes: 16, eps: 1e-4, ..Default::default() };
-    let report = check_grad(f, &inputs, &opts).unwrap();
-    println!(
-        "AifNet FD check ({} probes, {:.1} s): max rel error {:.2e}; per input: {:?}",
-        report.probes,
-        start.elapsed().as_secs_f64(),
-        report.max_rel_error,
-        report.per_input.iter().map(|e| format!("{e:.1e}")).collect::<Vec<_>>()
-    );
+    let report = common::check_network_grad("AifNet", &varmap, &probed, x, |vb, x| {
+        AifNet::new(config.clone(), vb)?.forward(x, &t)
+    });
     assert!(report.max_rel_error < 1e-6, "{report:?}");
 }
 

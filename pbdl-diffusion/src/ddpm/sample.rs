@@ -22,6 +22,11 @@ fn sub_seed(seed: u64, stream: u64) -> u64 {
 /// The stream of the condition noise; step noise uses the step index as stream.
 const C_NOISE_STREAM: u64 = u64::MAX;
 
+/// Standard normal noise of the shape, dtype and device of `like`, drawn from `stream` of `seed`.
+fn noise_like(like: &Tensor, seed: u64, stream: u64) -> Result<Tensor> {
+    Diffusion::noise(like.dims(), like.dtype(), like.device(), sub_seed(seed, stream))
+}
+
 impl Diffusion {
     fn prepare(&self, cond: Option<&Tensor>, x: &Tensor, seed: u64) -> Result<Option<Prepared>> {
         let (b, _, h, w) = dims4("start noise x", x)?;
@@ -29,7 +34,7 @@ impl Diffusion {
         let Some(c) = cond else { return Ok(None) };
         let c = c.to_dtype(x.dtype())?;
         let c_noise = match self.conditioning {
-            Conditioning::Noisy => Some(Self::noise(c.dims(), c.dtype(), c.device(), sub_seed(seed, C_NOISE_STREAM))?),
+            Conditioning::Noisy => Some(noise_like(&c, seed, C_NOISE_STREAM)?),
             Conditioning::Clean => None,
         };
         Ok(Some(Prepared { c, c_noise }))
@@ -45,22 +50,12 @@ impl Diffusion {
         x: &Tensor,
         i: usize,
     ) -> Result<Tensor> {
-        Ok(self.eps_target_graph(model, cond, x, i)?.detach())
-    }
-
-    fn eps_target_graph<M: NoisePredictor + ?Sized>(
-        &self,
-        model: &M,
-        cond: Option<&Prepared>,
-        x: &Tensor,
-        i: usize,
-    ) -> Result<Tensor> {
         let b = x.dim(0)?;
         let steps = vec![i; b];
         let cx = x.dim(1)?;
-        match cond {
-            None => predict_checked(model, x, &steps, cx),
-            Some(Prepared { c, c_noise: None }) => predict_checked(model, &Tensor::cat(&[c, x], 1)?, &steps, cx),
+        let eps = match cond {
+            None => predict_checked(model, x, &steps, cx)?,
+            Some(Prepared { c, c_noise: None }) => predict_checked(model, &Tensor::cat(&[c, x], 1)?, &steps, cx)?,
             Some(Prepared { c, c_noise: Some(n) }) => {
                 // ACDM: the condition is diffused to step i with the call's fixed noise, the model
                 // predicts eps on all channels, and only the target part is used.
@@ -68,9 +63,10 @@ impl Diffusion {
                 let c_i = ((c * s.sqrt_alpha_bar(i))? + (n * s.sqrt_one_minus_alpha_bar(i))?)?;
                 let cc = c.dim(1)?;
                 let eps = predict_checked(model, &Tensor::cat(&[&c_i, x], 1)?, &steps, cc + cx)?;
-                Ok(eps.narrow(1, cc, cx)?)
+                eps.narrow(1, cc, cx)?
             }
-        }
+        };
+        Ok(eps.detach())
     }
 
     /// Ancestral DDPM sampling over all `R` steps.
@@ -125,7 +121,7 @@ impl Diffusion {
         if i == 0 {
             return Ok(mu);
         }
-        let xi = Self::noise(x.dims(), x.dtype(), x.device(), sub_seed(seed, i as u64))?;
+        let xi = noise_like(x, seed, i as u64)?;
         Ok((mu + (xi * s.posterior_variance(i).sqrt())?)?)
     }
 
@@ -171,7 +167,7 @@ impl Diffusion {
             let dir = (1.0 - ab_prev - sigma * sigma).max(0.0).sqrt();
             x = ((x0_hat * ab_prev.sqrt())? + (eps * dir)?)?;
             if sigma > 0.0 {
-                let xi = Self::noise(x.dims(), x.dtype(), x.device(), sub_seed(seed, i as u64))?;
+                let xi = noise_like(&x, seed, i as u64)?;
                 x = (x + (xi * sigma)?)?;
             }
         }

@@ -165,42 +165,26 @@ impl EulerChainLaw {
                 if lo > hi {
                     continue;
                 }
-                // Upward from c (or from lo if c is below the grid): e_{j+1} = e_j r_j,
-                // r_{j+1} = r_j q, with e and r recomputed exactly every 32 nodes.
+                // Upward from c (or from lo if c is below the grid), then downward from
+                // start - 1: e_{j+-1} = e_j r_j, r_{j+-1} = r_j q (the ratio's sign of 2 d h
+                // follows the direction), with e and r recomputed exactly every 32 nodes.
                 let start = c.clamp(lo, hi);
-                let mut j = start;
-                while j <= hi {
-                    let d = node(j as usize) - f;
-                    let mut e = (-d * d * inv2s2).exp();
-                    let mut r = (-(2.0 * d * h + h * h) * inv2s2).exp();
-                    let end = (j + 32).min(hi + 1);
-                    while j < end {
-                        let ju = j as usize;
-                        let we = wn * e;
-                        qd[ju] += we;
-                        qa[ju] += we * (f - node(ju));
-                        qb[ju] += wbn * e;
-                        e *= r;
-                        r *= q_step;
-                        j += 1;
-                    }
-                }
-                // Downward from start - 1.
-                let mut j = start - 1;
-                while j >= lo {
-                    let d = node(j as usize) - f;
-                    let mut e = (-d * d * inv2s2).exp();
-                    let mut r = ((2.0 * d * h - h * h) * inv2s2).exp();
-                    let end = (j - 32).max(lo - 1);
-                    while j > end {
-                        let ju = j as usize;
-                        let we = wn * e;
-                        qd[ju] += we;
-                        qa[ju] += we * (f - node(ju));
-                        qb[ju] += wbn * e;
-                        e *= r;
-                        r *= q_step;
-                        j -= 1;
+                for (mut j, step) in [(start, 1isize), (start - 1, -1)] {
+                    while (lo..=hi).contains(&j) {
+                        let d = node(j as usize) - f;
+                        let mut e = (-d * d * inv2s2).exp();
+                        let mut r = (-(2.0 * d * h * step as f64 + h * h) * inv2s2).exp();
+                        let end = if step > 0 { (j + 32).min(hi + 1) } else { (j - 32).max(lo - 1) };
+                        while j != end {
+                            let ju = j as usize;
+                            let we = wn * e;
+                            qd[ju] += we;
+                            qa[ju] += we * (f - node(ju));
+                            qb[ju] += wbn * e;
+                            e *= r;
+                            r *= q_step;
+                            j += step;
+                        }
                     }
                 }
             }

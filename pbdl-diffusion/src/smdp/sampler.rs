@@ -147,8 +147,9 @@ pub fn invert_step(drift: &impl ScalarDrift, h: f64, z: f64) -> f64 {
     f64::NAN
 }
 
-/// Runs `sampler` backward from states `y` at `t = T` to `t = 0`. With `record`, every state is
-/// kept: `trajectory[k][i]` is sample `i` at time `(steps - k) dt`; otherwise only the end.
+/// Runs `sampler` backward from states `y` at `t = T` to `t = 0` (after checking `sde` and
+/// `opts`; no states for an empty `y`). With `record`, every state is kept: `trajectory[k][i]` is
+/// sample `i` at time `(steps - k) dt`; otherwise only the end.
 fn run(
     sde: &ToySde,
     score: &impl ScalarScore,
@@ -157,7 +158,11 @@ fn run(
     opts: SamplerOptions,
     seed: u64,
     record: bool,
-) -> Vec<Vec<f64>> {
+) -> Result<Vec<Vec<f64>>> {
+    check(sde, opts)?;
+    if y.is_empty() {
+        return Ok(vec![]);
+    }
     let steps = sde.steps();
     let sub = opts.substeps.max(1);
     let h = sde.dt / sub as f64;
@@ -218,7 +223,7 @@ fn run(
         })
         .collect();
     let len = chunks[0].len();
-    (0..len).map(|k| chunks.iter().flat_map(|c| c[k].iter().copied()).collect()).collect()
+    Ok((0..len).map(|k| chunks.iter().flat_map(|c| c[k].iter().copied()).collect()).collect())
 }
 
 /// The end states `x_0` of `sampler` started at `y` (at `t = T`).
@@ -235,11 +240,7 @@ pub fn sample_with(
     opts: SamplerOptions,
     seed: u64,
 ) -> Result<Vec<f64>> {
-    check(sde, opts)?;
-    if y.is_empty() {
-        return Ok(vec![]);
-    }
-    Ok(run(sde, score, y, sampler, opts, seed, false).pop().unwrap_or_default())
+    Ok(run(sde, score, y, sampler, opts, seed, false)?.pop().unwrap_or_default())
 }
 
 /// Every state of `sampler` started at `y`: `out[k][i]` is sample `i` at time `T - k dt`.
@@ -262,11 +263,7 @@ pub fn sample_trajectories_with(
     opts: SamplerOptions,
     seed: u64,
 ) -> Result<Vec<Vec<f64>>> {
-    check(sde, opts)?;
-    if y.is_empty() {
-        return Ok(vec![]);
-    }
-    Ok(run(sde, score, y, sampler, opts, seed, true))
+    run(sde, score, y, sampler, opts, seed, true)
 }
 
 fn check(sde: &ToySde, opts: SamplerOptions) -> Result<()> {

@@ -60,12 +60,28 @@ type View<'a, T> = (&'a [T], usize, usize);
 
 /// `dst (m x n, row-major) = [dst +] beta * a (m x k) b (k x n)`.
 fn mm<T: Real>(dst: &mut [T], a: View<T>, b: View<T>, (m, n, k): (usize, usize, usize), beta: T, accumulate: bool) {
+    gemm_checked(dst, n, a, b, (m, n, k), beta, accumulate, "mm");
+}
+
+/// `dst (m x n, row stride ld) = [dst +] beta * a (m x k) b (k x n)`: the bounds-checked call
+/// into `gemm` behind [`mm`] and [`mm_into_block`]; `what` names the caller in the panics.
+fn gemm_checked<T: Real>(
+    dst: &mut [T],
+    ld: usize,
+    a: View<T>,
+    b: View<T>,
+    (m, n, k): (usize, usize, usize),
+    beta: T,
+    accumulate: bool,
+    what: &str,
+) {
     let extent = |rows: usize, cols: usize, rs: usize, cs: usize| (rows - 1) * rs + (cols - 1) * cs + 1;
-    assert!(m > 0 && n > 0 && k > 0, "mm: empty product");
-    assert!(dst.len() >= m * n, "mm: dst too short");
-    assert!(a.0.len() >= extent(m, k, a.1, a.2) && b.0.len() >= extent(k, n, b.1, b.2), "mm: operand too short");
-    // SAFETY: the asserts keep every access inside the slices; `dst` is a unique borrow, so it
-    // aliases neither operand; T is f32 or f64, both supported by gemm.
+    assert!(m > 0 && n > 0 && k > 0, "{what}: empty product");
+    assert!(n <= ld && dst.len() >= extent(m, n, ld, 1), "{what}: dst too short");
+    assert!(a.0.len() >= extent(m, k, a.1, a.2) && b.0.len() >= extent(k, n, b.1, b.2), "{what}: operand too short");
+    // SAFETY: the asserts keep every access inside the slices (rows of length n <= ld at stride
+    // ld in dst); `dst` is a unique borrow, so it aliases neither operand; T is f32 or f64, both
+    // supported by gemm.
     unsafe {
         gemm::gemm(
             m,
@@ -73,7 +89,7 @@ fn mm<T: Real>(dst: &mut [T], a: View<T>, b: View<T>, (m, n, k): (usize, usize, 
             k,
             dst.as_mut_ptr(),
             1,
-            n as isize,
+            ld as isize,
             accumulate,
             a.0.as_ptr(),
             a.2 as isize,
@@ -311,37 +327,7 @@ fn mm_into_block<T: Real>(
     (m, n, k): (usize, usize, usize),
 ) {
     assert!(col0 + n <= ld && dst.len() >= m * ld, "mm_into_block: block outside dst");
-    let extent = |rows: usize, cols: usize, rs: usize, cs: usize| (rows - 1) * rs + (cols - 1) * cs + 1;
-    assert!(
-        a.0.len() >= extent(m, k, a.1, a.2) && b.0.len() >= extent(k, n, b.1, b.2),
-        "mm_into_block: operand too short"
-    );
-    let dst = &mut dst[col0..];
-    // SAFETY: rows of length n at stride ld starting at col0 stay inside dst (asserted); the
-    // operands are checked as in `mm` and do not alias the unique borrow `dst`.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            ld as isize,
-            true,
-            a.0.as_ptr(),
-            a.2 as isize,
-            a.1 as isize,
-            b.0.as_ptr(),
-            b.2 as isize,
-            b.1 as isize,
-            T::one(),
-            T::one(),
-            false,
-            false,
-            false,
-            Parallelism::None,
-        )
-    }
+    gemm_checked(&mut dst[col0..], ld, a, b, (m, n, k), T::one(), true, "mm_into_block");
 }
 
 /// The layer `y = W_out linear_attention(W_qkv x)` on `x` `[batch, c, y, x]`, with
