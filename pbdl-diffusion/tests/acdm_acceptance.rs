@@ -3,7 +3,8 @@
 //! `cargo test -p pbdl-diffusion --test acdm_acceptance -- --ignored --nocapture`
 //!
 //! Environment: `PBDL_ACDM_TRAIN_STEPS` (default 1000 updates of batch 16; ACDM 48 wide, the
-//! baselines 16 wide, see `acdm::entries` for why),
+//! baselines 16 wide, see `acdm::entries` for why), `PBDL_ACDM_BASELINE_STEPS` (the baselines'
+//! updates, default the same),
 //! `PBDL_ACDM_ROLLOUT` (default 1000 steps), `PBDL_ACDM_SAMPLER` (`ddpm` default, or `ddimK`),
 //! `PBDL_ACDM_BASELINES` (`unet` default; a comma list of `unet`, `unet_tn`, `unet_ut8`).
 //! Models are cached (resumable) under `target/pbdl/acdm/runs/full/`.
@@ -45,6 +46,7 @@ fn acdm_beats_one_step_unet_on_held_out_reynolds_numbers() {
     let b = Benchmark::default_full().unwrap();
     println!("data: train {:.1} s, test {:.1} s (0 = cached)", b.train.seconds, b.test.seconds);
     let steps: usize = env("PBDL_ACDM_TRAIN_STEPS").and_then(|s| s.parse().ok()).unwrap_or(1000);
+    let baseline_steps: usize = env("PBDL_ACDM_BASELINE_STEPS").and_then(|s| s.parse().ok()).unwrap_or(steps);
     let n: usize = env("PBDL_ACDM_ROLLOUT").and_then(|s| s.parse().ok()).unwrap_or(1000);
     let sampler = match env("PBDL_ACDM_SAMPLER").as_deref() {
         Some(s) if s.starts_with("ddim") => Sampler::Ddim(s[4..].parse().unwrap()),
@@ -77,9 +79,9 @@ fn acdm_beats_one_step_unet_on_held_out_reynolds_numbers() {
             "unet_ut8" => Method::UnetUnrolled { m: 8 },
             _ => Method::Unet,
         };
-        let (m, rep) = b.model(method, 16, steps, 16).unwrap();
+        let (m, rep) = b.model(method, 16, baseline_steps, 16).unwrap();
         if let Some(r) = rep {
-            println!("{} trained {}..{steps}: {:.2} s/update", name, r.resumed_from, r.seconds_per_step);
+            println!("{} trained {}..{baseline_steps}: {:.2} s/update", name, r.resumed_from, r.seconds_per_step);
         }
         for re in TEST_RE {
             let r = evaluate(&m, b.held_out(re).unwrap(), &b.norm, &b.test.config, &cfg, lsim.as_ref()).unwrap();
