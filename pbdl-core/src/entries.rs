@@ -320,26 +320,14 @@ fn bench_conv(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     let c = compare_conv2d(8, 32, 64, reps)?;
     let size = "b8_c32_64x64_k3".to_string();
     rows.push(BenchRow {
-        case: "conv2d_f32_fwd_bwd".into(),
-        method: "pbdl".into(),
-        size: size.clone(),
-        seconds: c.ours_s,
-        unit: "call".into(),
         error: Some(c.rel_err),
         error_kind: "rel_max_diff_vs_candle".into(),
-        peer: false,
-        threads: ctx.threads,
+        ..call_row(ctx, "conv2d_f32_fwd_bwd", size.clone(), c.ours_s)
     });
     rows.push(BenchRow {
-        case: "conv2d_f32_fwd_bwd".into(),
         method: "candle".into(),
-        size,
-        seconds: c.candle_s,
-        unit: "call".into(),
-        error: None,
-        error_kind: String::new(),
         peer: true,
-        threads: ctx.threads,
+        ..call_row(ctx, "conv2d_f32_fwd_bwd", size, c.candle_s)
     });
     // conv3d has no candle counterpart; its accuracy is covered by the tests (direct sum, FD).
     let dev = Device::Cpu;
@@ -350,17 +338,7 @@ fn bench_conv(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         let y = conv3d(x.as_tensor(), w.as_tensor(), None, &p).expect("conv3d");
         y.sqr().and_then(|t| t.sum_all()).and_then(|t| t.backward()).expect("backward")
     });
-    rows.push(BenchRow {
-        case: "conv3d_f32_fwd_bwd".into(),
-        method: "pbdl".into(),
-        size: "b2_c16_32^3_k3_circular".into(),
-        seconds: s,
-        unit: "call".into(),
-        error: None,
-        error_kind: String::new(),
-        peer: false,
-        threads: ctx.threads,
-    });
+    rows.push(call_row(ctx, "conv3d_f32_fwd_bwd", "b2_c16_32^3_k3_circular", s));
     Ok(rows)
 }
 
@@ -373,33 +351,33 @@ fn bench_sampling(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         let disp = seed::rand_uniform((1, 2, n, n), -1.0, 1.0, DType::F32, &Device::Cpu, 5)?;
         let s = median_seconds(2, reps, || warp(&f, &disp, Boundary::Periodic).expect("warp"));
         rows.push(BenchRow {
-            case: "warp2d_bilinear_periodic".into(),
-            method: "pbdl".into(),
-            size: format!("{n}x{n}"),
-            seconds: s,
-            unit: "call".into(),
             error: Some(err),
             error_kind: "rel_l2_vs_analytic_shift".into(),
-            peer: false,
-            threads: ctx.threads,
+            ..call_row(ctx, "warp2d_bilinear_periodic", format!("{n}x{n}"), s)
         });
     }
     let n = 64;
     let f = seed::randn((1, 3, n, n, n), 0.0, 1.0, DType::F32, &Device::Cpu, 6)?;
     let disp = seed::rand_uniform((1, 3, n, n, n), -1.0, 1.0, DType::F32, &Device::Cpu, 7)?;
     let s = median_seconds(1, reps, || warp(&f, &disp, Boundary::Clamp).expect("warp3d"));
-    rows.push(BenchRow {
-        case: "warp3d_trilinear_3ch".into(),
+    rows.push(call_row(ctx, "warp3d_trilinear_3ch", "64^3", s));
+    Ok(rows)
+}
+
+/// A row of this crate's bench: pbdl's median seconds per call of `case` at `size`, with no
+/// error measured (struct update syntax sets the fields that differ).
+fn call_row(ctx: &TaskContext, case: &str, size: impl Into<String>, seconds: f64) -> BenchRow {
+    BenchRow {
+        case: case.into(),
         method: "pbdl".into(),
-        size: "64^3".into(),
-        seconds: s,
+        size: size.into(),
+        seconds,
         unit: "call".into(),
         error: None,
         error_kind: String::new(),
         peer: false,
         threads: ctx.threads,
-    });
-    Ok(rows)
+    }
 }
 
 /// Direct-sum 2D convolution in f64 (zero or circular padding), the reference of the fuzz test.

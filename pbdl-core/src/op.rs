@@ -192,12 +192,30 @@ fn unsupported(op: &'static str, dtype: DType) -> candle_core::Error {
         .into()
 }
 
+/// The float dtype shared by all `inputs` of `op`, or the typed error naming the first input
+/// whose dtype is not a float or differs from the first one.
+fn common_float(op: &'static str, inputs: &[&CpuStorage]) -> candle_core::Result<DType> {
+    let first = inputs[0].dtype();
+    match inputs.iter().map(|s| s.dtype()).find(|d| *d != first || !matches!(d, DType::F32 | DType::F64)) {
+        None => Ok(first),
+        Some(bad) => Err(unsupported(op, bad)),
+    }
+}
+
+/// A zero-initialised output of `shape`, filled by `fill` and handed back as candle storage.
+fn output<T: Real>(
+    shape: Shape,
+    fill: impl FnOnce(&mut [T]) -> candle_core::Result<()>,
+) -> candle_core::Result<(CpuStorage, Shape)> {
+    let mut out = vec![T::zero(); shape.elem_count()];
+    fill(&mut out)?;
+    Ok((T::to_cpu_storage_owned(out), shape))
+}
+
 fn run1<K: Kernel1, T: Real>(k: &K, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
     let out_shape = k.output_shape(l.shape())?;
     let x = dense::<T>(s, l)?;
-    let mut out = vec![T::zero(); out_shape.elem_count()];
-    k.forward(&x, l.shape(), &mut out)?;
-    Ok((T::to_cpu_storage_owned(out), out_shape))
+    output(out_shape, |out| k.forward(&x, l.shape(), out))
 }
 
 fn run2<K: Kernel2, T: Real>(
@@ -208,11 +226,8 @@ fn run2<K: Kernel2, T: Real>(
     l2: &Layout,
 ) -> candle_core::Result<(CpuStorage, Shape)> {
     let out_shape = k.output_shape(l1.shape(), l2.shape())?;
-    let a = dense::<T>(s1, l1)?;
-    let b = dense::<T>(s2, l2)?;
-    let mut out = vec![T::zero(); out_shape.elem_count()];
-    k.forward(&a, l1.shape(), &b, l2.shape(), &mut out)?;
-    Ok((T::to_cpu_storage_owned(out), out_shape))
+    let (a, b) = (dense::<T>(s1, l1)?, dense::<T>(s2, l2)?);
+    output(out_shape, |out| k.forward(&a, l1.shape(), &b, l2.shape(), out))
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -226,59 +241,8 @@ fn run3<K: Kernel3, T: Real>(
     l3: &Layout,
 ) -> candle_core::Result<(CpuStorage, Shape)> {
     let out_shape = k.output_shape(l1.shape(), l2.shape(), l3.shape())?;
-    let a = dense::<T>(s1, l1)?;
-    let b = dense::<T>(s2, l2)?;
-    let c = dense::<T>(s3, l3)?;
-    let mut out = vec![T::zero(); out_shape.elem_count()];
-    k.forward(&a, l1.shape(), &b, l2.shape(), &c, l3.shape(), &mut out)?;
-    Ok((T::to_cpu_storage_owned(out), out_shape))
-}
-
-fn fwd1<K: Kernel1>(k: &K, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-    match s {
-        CpuStorage::F32(_) => run1::<K, f32>(k, s, l),
-        CpuStorage::F64(_) => run1::<K, f64>(k, s, l),
-        other => Err(unsupported(k.name(), other.dtype())),
-    }
-}
-
-fn fwd2<K: Kernel2>(
-    k: &K,
-    s1: &CpuStorage,
-    l1: &Layout,
-    s2: &CpuStorage,
-    l2: &Layout,
-) -> candle_core::Result<(CpuStorage, Shape)> {
-    match (s1, s2) {
-        (CpuStorage::F32(_), CpuStorage::F32(_)) => run2::<K, f32>(k, s1, l1, s2, l2),
-        (CpuStorage::F64(_), CpuStorage::F64(_)) => run2::<K, f64>(k, s1, l1, s2, l2),
-        (CpuStorage::F32(_) | CpuStorage::F64(_), other) => Err(unsupported(k.name(), other.dtype())),
-        (other, _) => Err(unsupported(k.name(), other.dtype())),
-    }
-}
-
-#[allow(clippy::too_many_arguments)]
-fn fwd3<K: Kernel3>(
-    k: &K,
-    s1: &CpuStorage,
-    l1: &Layout,
-    s2: &CpuStorage,
-    l2: &Layout,
-    s3: &CpuStorage,
-    l3: &Layout,
-) -> candle_core::Result<(CpuStorage, Shape)> {
-    match (s1, s2, s3) {
-        (CpuStorage::F32(_), CpuStorage::F32(_), CpuStorage::F32(_)) => run3::<K, f32>(k, s1, l1, s2, l2, s3, l3),
-        (CpuStorage::F64(_), CpuStorage::F64(_), CpuStorage::F64(_)) => run3::<K, f64>(k, s1, l1, s2, l2, s3, l3),
-        _ => {
-            let bad = [s1, s2, s3]
-                .into_iter()
-                .map(|s| s.dtype())
-                .find(|d| *d != s1.dtype() || !matches!(d, DType::F32 | DType::F64))
-                .unwrap_or(s1.dtype());
-            Err(unsupported(k.name(), bad))
-        }
-    }
+    let (a, b, c) = (dense::<T>(s1, l1)?, dense::<T>(s2, l2)?, dense::<T>(s3, l3)?);
+    output(out_shape, |out| k.forward(&a, l1.shape(), &b, l2.shape(), &c, l3.shape(), out))
 }
 
 /// Adapter from an [`Op1`]/[`Op2`]/[`Op3`] to candle's custom-op traits.
@@ -286,40 +250,35 @@ struct WithGrad<K>(K);
 /// Adapter from a forward-only kernel to candle's custom-op traits (backward is an error).
 struct NoGrad<K>(K);
 
+/// The `name` and `cpu_fwd` methods of a candle custom op with inputs `$s: $l`, shared by
+/// [`WithGrad`] and [`NoGrad`]: the inputs' common float dtype picks the instance of `$run`.
+macro_rules! forward_methods {
+    ($run:ident, $($s:ident: $l:ident),+) => {
+        fn name(&self) -> &'static str {
+            self.0.name()
+        }
+        fn cpu_fwd(&self, $($s: &CpuStorage, $l: &Layout),+) -> candle_core::Result<(CpuStorage, Shape)> {
+            match common_float(self.0.name(), &[$($s),+])? {
+                DType::F32 => $run::<K, f32>(&self.0, $($s, $l),+),
+                _ => $run::<K, f64>(&self.0, $($s, $l),+),
+            }
+        }
+    };
+}
+
 impl<K: Op1> CustomOp1 for WithGrad<K> {
-    fn name(&self) -> &'static str {
-        self.0.name()
-    }
-    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        fwd1(&self.0, s, l)
-    }
+    forward_methods!(run1, s: l);
     fn bwd(&self, x: &Tensor, y: &Tensor, gy: &Tensor) -> candle_core::Result<Option<Tensor>> {
         Ok(Some(self.0.backward(x, y, gy)?))
     }
 }
 
 impl<K: Kernel1> CustomOp1 for NoGrad<K> {
-    fn name(&self) -> &'static str {
-        self.0.name()
-    }
-    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
-        fwd1(&self.0, s, l)
-    }
+    forward_methods!(run1, s: l);
 }
 
 impl<K: Op2> CustomOp2 for WithGrad<K> {
-    fn name(&self) -> &'static str {
-        self.0.name()
-    }
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        fwd2(&self.0, s1, l1, s2, l2)
-    }
+    forward_methods!(run2, s1: l1, s2: l2);
     fn bwd(
         &self,
         a: &Tensor,
@@ -333,35 +292,11 @@ impl<K: Op2> CustomOp2 for WithGrad<K> {
 }
 
 impl<K: Kernel2> CustomOp2 for NoGrad<K> {
-    fn name(&self) -> &'static str {
-        self.0.name()
-    }
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        fwd2(&self.0, s1, l1, s2, l2)
-    }
+    forward_methods!(run2, s1: l1, s2: l2);
 }
 
 impl<K: Op3> CustomOp3 for WithGrad<K> {
-    fn name(&self) -> &'static str {
-        self.0.name()
-    }
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        fwd3(&self.0, s1, l1, s2, l2, s3, l3)
-    }
+    forward_methods!(run3, s1: l1, s2: l2, s3: l3);
     fn bwd(
         &self,
         a: &Tensor,
@@ -376,19 +311,25 @@ impl<K: Op3> CustomOp3 for WithGrad<K> {
 }
 
 impl<K: Kernel3> CustomOp3 for NoGrad<K> {
-    fn name(&self) -> &'static str {
-        self.0.name()
-    }
-    fn cpu_fwd(
-        &self,
-        s1: &CpuStorage,
-        l1: &Layout,
-        s2: &CpuStorage,
-        l2: &Layout,
-        s3: &CpuStorage,
-        l3: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
-        fwd3(&self.0, s1, l1, s2, l2, s3, l3)
+    forward_methods!(run3, s1: l1, s2: l2, s3: l3);
+}
+
+/// An explicit zero gradient of the shape of `t`, without allocating its full size (a
+/// broadcast scalar): nobody can read it, but candle expects a tensor.
+pub(crate) fn zeros_like(t: &Tensor) -> candle_core::Result<Tensor> {
+    Tensor::zeros((), t.dtype(), t.device())?.broadcast_as(t.shape())
+}
+
+/// The gradient `grad()` for an input `t` that tracks gradients, else [`zeros_like`]`(t)`
+/// without running `grad` (nothing downstream can read that gradient).
+pub(crate) fn grad_if_tracked(
+    t: &Tensor,
+    grad: impl FnOnce() -> candle_core::Result<Tensor>,
+) -> candle_core::Result<Tensor> {
+    if t.track_op() {
+        grad()
+    } else {
+        zeros_like(t)
     }
 }
 

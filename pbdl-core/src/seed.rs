@@ -21,15 +21,10 @@ pub fn randn(
     device: &Device,
     seed: u64,
 ) -> candle_core::Result<Tensor> {
-    let shape = shape.into();
-    let mut r = rng(seed);
-    let data: Vec<f64> = (0..shape.elem_count())
-        .map(|_| {
-            let z: f64 = StandardNormal.sample(&mut r);
-            mean + std * z
-        })
-        .collect();
-    Tensor::from_vec(data, shape, device)?.to_dtype(dtype)
+    draw(shape.into(), dtype, device, seed, |r| {
+        let z: f64 = StandardNormal.sample(r);
+        mean + std * z
+    })
 }
 
 /// Uniform samples in `[lo, hi)` of the given shape.
@@ -41,9 +36,20 @@ pub fn rand_uniform(
     device: &Device,
     seed: u64,
 ) -> candle_core::Result<Tensor> {
-    let shape = shape.into();
+    draw(shape.into(), dtype, device, seed, |r| r.random_range(lo..hi))
+}
+
+/// A tensor of `shape` whose elements, in row-major order, are `sample` drawn in `f64` from
+/// [`rng`]`(seed)` and then converted to `dtype`.
+fn draw(
+    shape: Shape,
+    dtype: DType,
+    device: &Device,
+    seed: u64,
+    mut sample: impl FnMut(&mut StdRng) -> f64,
+) -> candle_core::Result<Tensor> {
     let mut r = rng(seed);
-    let data: Vec<f64> = (0..shape.elem_count()).map(|_| r.random_range(lo..hi)).collect();
+    let data: Vec<f64> = (0..shape.elem_count()).map(|_| sample(&mut r)).collect();
     Tensor::from_vec(data, shape, device)?.to_dtype(dtype)
 }
 

@@ -8,28 +8,10 @@ use pbdl_core::conv::{
     conv, conv2d, conv_im2col, conv_transpose2d, uses_direct_kernel, Conv1dParams, Conv2dParams, Conv3dParams,
     ConvParams,
 };
-use pbdl_core::{check_grad, seed, GradCheckOptions};
+use pbdl_core::{check_grad, GradCheckOptions};
 
-/// f64 agreement of the direct and the im2col path (max |a - b| relative to max |b|).
-const F64_TOL: f64 = 1e-12;
-/// f32 agreement of the two paths.
-const F32_TOL: f64 = 1e-5;
-/// Finite-difference gradient checks in f64.
-const GRAD_TOL: f64 = 1e-6;
-
-fn randn(shape: &[usize], dtype: DType, seed: u64) -> Tensor {
-    seed::randn(shape, 0.0, 1.0, dtype, &Device::Cpu, seed).unwrap()
-}
-
-fn max_abs(t: &Tensor) -> f64 {
-    t.abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_dtype(DType::F64).unwrap().to_scalar::<f64>().unwrap()
-}
-
-/// max |a - b| / max |b|.
-fn rel_diff(a: &Tensor, b: &Tensor) -> f64 {
-    assert_eq!(a.dims(), b.dims(), "shapes differ");
-    max_abs(&(a - b).unwrap()) / max_abs(b).max(1e-300)
-}
+mod common;
+use common::{randn, rel_diff, F32_TOL, F64_TOL, GRAD_TOL};
 
 /// Output and gradients (input, weight, bias) under the loss `sum(y * r)`, `r` seeded.
 fn value_and_grads<const N: usize>(

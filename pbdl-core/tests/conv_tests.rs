@@ -7,29 +7,10 @@ use candle_nn::{VarBuilder, VarMap};
 use pbdl_core::conv::{
     conv, conv1d, conv2d, conv3d, output_size, Conv1dParams, Conv2dParams, Conv3dParams, ConvLayerConfig, ConvParams,
 };
-use pbdl_core::{assert_varmap_has_grads, check_grad, seed, Error, GradCheckOptions};
+use pbdl_core::{assert_varmap_has_grads, check_grad, Error, GradCheckOptions};
 
-/// f32 agreement with candle: max |a - b| relative to max |b|.
-const F32_TOL: f64 = 1e-5;
-/// Finite-difference gradient checks in f64.
-const GRAD_TOL: f64 = 1e-6;
-/// f64 agreement with a direct loop.
-const F64_TOL: f64 = 1e-12;
-
-fn randn(shape: &[usize], dtype: DType, seed: u64) -> Tensor {
-    seed::randn(shape, 0.0, 1.0, dtype, &Device::Cpu, seed).unwrap()
-}
-
-fn max_abs(t: &Tensor) -> f64 {
-    t.abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_dtype(DType::F64).unwrap().to_scalar::<f64>().unwrap()
-}
-
-/// max |a - b| / max |b|.
-fn rel_diff(a: &Tensor, b: &Tensor) -> f64 {
-    assert_eq!(a.dims(), b.dims(), "shapes differ");
-    let d = max_abs(&(a - b).unwrap());
-    d / max_abs(b).max(1e-30)
-}
+mod common;
+use common::{randn, rel_diff, F32_TOL, F64_TOL, GRAD_TOL};
 
 /// Output and gradients (input, weight) of `f(x, w)` under the loss `sum(f(x, w) * r)`.
 fn value_and_grads(

@@ -9,11 +9,11 @@
 //! `<ggw, grad_weight(x, gy)> = <conv(x, ggw), gy>`, so second derivatives come for free.
 
 use super::depthwise;
-use super::forward::{conv_tensor, zeros_like};
+use super::forward::{conv_kernel2, conv_tensor};
 use super::geometry::{expect_shape, Geometry};
 use super::im2col::Plan;
 use super::matmul::{matmul, split, Mat};
-use crate::op::{apply2, Kernel2, Op2};
+use crate::op::{apply2, grad_if_tracked, Kernel2, Op2};
 use crate::Real;
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
@@ -106,58 +106,28 @@ pub(crate) fn conv_grad_weight<T: Real>(g: &Geometry, x: &[T], gy: &[T], gw: &mu
     }
 }
 
-/// The differentiable op `gx = grad_input(gy, w)` on tensors.
-pub(crate) struct ConvGradInput(pub Geometry);
-
-impl Kernel2 for ConvGradInput {
-    fn name(&self) -> &'static str {
-        "conv_grad_input"
-    }
-
-    fn output_shape(&self, gy: &Shape, w: &Shape) -> candle_core::Result<Shape> {
-        expect_shape("conv_grad_input", "grad_output", gy.dims(), &self.0.y_shape())?;
-        expect_shape("conv_grad_input", "weight", w.dims(), &self.0.w_shape())?;
-        Ok(Shape::from(self.0.x_shape()))
-    }
-
-    fn forward<T: Real>(&self, gy: &[T], _: &Shape, w: &[T], _: &Shape, gx: &mut [T]) -> candle_core::Result<()> {
-        conv_grad_input(&self.0, gy, w, gx);
-        Ok(())
-    }
+conv_kernel2! {
+    /// The differentiable op `gx = grad_input(gy, w)` on tensors.
+    ConvGradInput, "conv_grad_input", conv_grad_input, ("grad_output": y_shape, "weight": w_shape) -> x_shape
 }
 
 impl Op2 for ConvGradInput {
     fn backward(&self, gy: &Tensor, w: &Tensor, _gx: &Tensor, ggx: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
-        let d_gy = if gy.track_op() { conv_tensor(&self.0, ggx, w)? } else { zeros_like(gy)? };
-        let d_w = if w.track_op() { grad_weight_tensor(&self.0, ggx, gy)? } else { zeros_like(w)? };
+        let d_gy = grad_if_tracked(gy, || conv_tensor(&self.0, ggx, w))?;
+        let d_w = grad_if_tracked(w, || grad_weight_tensor(&self.0, ggx, gy))?;
         Ok((d_gy, d_w))
     }
 }
 
-/// The differentiable op `gw = grad_weight(x, gy)` on tensors.
-pub(crate) struct ConvGradWeight(pub Geometry);
-
-impl Kernel2 for ConvGradWeight {
-    fn name(&self) -> &'static str {
-        "conv_grad_weight"
-    }
-
-    fn output_shape(&self, x: &Shape, gy: &Shape) -> candle_core::Result<Shape> {
-        expect_shape("conv_grad_weight", "input", x.dims(), &self.0.x_shape())?;
-        expect_shape("conv_grad_weight", "grad_output", gy.dims(), &self.0.y_shape())?;
-        Ok(Shape::from(self.0.w_shape()))
-    }
-
-    fn forward<T: Real>(&self, x: &[T], _: &Shape, gy: &[T], _: &Shape, gw: &mut [T]) -> candle_core::Result<()> {
-        conv_grad_weight(&self.0, x, gy, gw);
-        Ok(())
-    }
+conv_kernel2! {
+    /// The differentiable op `gw = grad_weight(x, gy)` on tensors.
+    ConvGradWeight, "conv_grad_weight", conv_grad_weight, ("input": x_shape, "grad_output": y_shape) -> w_shape
 }
 
 impl Op2 for ConvGradWeight {
     fn backward(&self, x: &Tensor, gy: &Tensor, _gw: &Tensor, ggw: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
-        let d_x = if x.track_op() { grad_input_tensor(&self.0, gy, ggw)? } else { zeros_like(x)? };
-        let d_gy = if gy.track_op() { conv_tensor(&self.0, x, ggw)? } else { zeros_like(gy)? };
+        let d_x = grad_if_tracked(x, || grad_input_tensor(&self.0, gy, ggw))?;
+        let d_gy = grad_if_tracked(gy, || conv_tensor(&self.0, x, ggw))?;
         Ok((d_x, d_gy))
     }
 }

@@ -29,9 +29,8 @@
 //! and, chosen at run time, for AVX2 with fused multiply-adds.
 
 use super::backward::{grad_input_tensor, grad_weight_tensor};
-use super::forward::zeros_like;
 use super::geometry::{expect_shape, Geometry};
-use crate::op::{apply1, apply3, Kernel1, Kernel3, Op1, Op3};
+use crate::op::{apply1, apply3, grad_if_tracked, Kernel1, Kernel3, Op1, Op3};
 use crate::Real;
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
@@ -532,9 +531,9 @@ impl Op3 for ConvBias {
         _y: &Tensor,
         gy: &Tensor,
     ) -> candle_core::Result<(Tensor, Tensor, Tensor)> {
-        let gx = if x.track_op() { grad_input_tensor(&self.0, gy, w)? } else { zeros_like(x)? };
-        let gw = if w.track_op() { grad_weight_tensor(&self.0, x, gy)? } else { zeros_like(w)? };
-        let gb = if b.track_op() { apply1(gy, ChannelSum(self.0))? } else { zeros_like(b)? };
+        let gx = grad_if_tracked(x, || grad_input_tensor(&self.0, gy, w))?;
+        let gw = grad_if_tracked(w, || grad_weight_tensor(&self.0, x, gy))?;
+        let gb = grad_if_tracked(b, || apply1(gy, ChannelSum(self.0)))?;
         Ok((gx, gw, gb))
     }
 }

@@ -5,7 +5,7 @@ use super::depthwise;
 use super::geometry::{expect_shape, Geometry};
 use super::im2col::Plan;
 use super::matmul::{matmul, split, Mat};
-use crate::op::{apply2, Kernel2, Op2};
+use crate::op::{apply2, grad_if_tracked, Kernel2, Op2};
 use crate::Real;
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
@@ -47,30 +47,43 @@ pub(crate) fn conv_forward<T: Real>(g: &Geometry, x: &[T], w: &[T], y: &mut [T])
     });
 }
 
-/// The differentiable op `y = conv(x, w)` on tensors.
-pub(crate) struct ConvForward(pub Geometry);
+/// Defines `$op(Geometry)`, the two-input kernel `$name` of a convolution geometry: its inputs
+/// must have the geometry's shapes `$a_shape` and `$b_shape` (called `$a` and `$b` in errors),
+/// its output has the shape `$out_shape`, and `$kernel(geometry, a, b, out)` fills the output.
+macro_rules! conv_kernel2 {
+    ($(#[$doc:meta])* $op:ident, $name:literal, $kernel:path, ($a:literal: $a_shape:ident, $b:literal: $b_shape:ident) -> $out_shape:ident) => {
+        $(#[$doc])*
+        pub(crate) struct $op(pub Geometry);
 
-impl Kernel2 for ConvForward {
-    fn name(&self) -> &'static str {
-        "conv"
-    }
+        impl Kernel2 for $op {
+            fn name(&self) -> &'static str {
+                $name
+            }
 
-    fn output_shape(&self, x: &Shape, w: &Shape) -> candle_core::Result<Shape> {
-        expect_shape("conv", "input", x.dims(), &self.0.x_shape())?;
-        expect_shape("conv", "weight", w.dims(), &self.0.w_shape())?;
-        Ok(Shape::from(self.0.y_shape()))
-    }
+            fn output_shape(&self, a: &Shape, b: &Shape) -> candle_core::Result<Shape> {
+                expect_shape($name, $a, a.dims(), &self.0.$a_shape())?;
+                expect_shape($name, $b, b.dims(), &self.0.$b_shape())?;
+                Ok(Shape::from(self.0.$out_shape()))
+            }
 
-    fn forward<T: Real>(&self, x: &[T], _: &Shape, w: &[T], _: &Shape, y: &mut [T]) -> candle_core::Result<()> {
-        conv_forward(&self.0, x, w, y);
-        Ok(())
-    }
+            fn forward<T: Real>(&self, a: &[T], _: &Shape, b: &[T], _: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+                $kernel(&self.0, a, b, out);
+                Ok(())
+            }
+        }
+    };
+}
+pub(super) use conv_kernel2;
+
+conv_kernel2! {
+    /// The differentiable op `y = conv(x, w)` on tensors.
+    ConvForward, "conv", conv_forward, ("input": x_shape, "weight": w_shape) -> y_shape
 }
 
 impl Op2 for ConvForward {
     fn backward(&self, x: &Tensor, w: &Tensor, _y: &Tensor, gy: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
-        let gx = if x.track_op() { grad_input_tensor(&self.0, gy, w)? } else { zeros_like(x)? };
-        let gw = if w.track_op() { grad_weight_tensor(&self.0, x, gy)? } else { zeros_like(w)? };
+        let gx = grad_if_tracked(x, || grad_input_tensor(&self.0, gy, w))?;
+        let gw = grad_if_tracked(w, || grad_weight_tensor(&self.0, x, gy))?;
         Ok((gx, gw))
     }
 }
@@ -78,10 +91,4 @@ impl Op2 for ConvForward {
 /// `conv(x, w)` on tensors of geometry `g`, differentiable to any order.
 pub(crate) fn conv_tensor(g: &Geometry, x: &Tensor, w: &Tensor) -> candle_core::Result<Tensor> {
     apply2(x, w, ConvForward(*g))
-}
-
-/// An explicit zero gradient for an input that does not track gradients, without allocating
-/// its full size (nobody can read it, but candle expects a tensor).
-pub(crate) fn zeros_like(t: &Tensor) -> candle_core::Result<Tensor> {
-    Tensor::zeros((), t.dtype(), t.device())?.broadcast_as(t.shape())
 }

@@ -2,7 +2,7 @@
 //! the values and the coordinates.
 
 use super::boundary::{locate, Boundaries, Boundary, Cell};
-use crate::op::{apply2, apply_kernel2, apply_kernel3, Kernel2, Kernel3, Op2};
+use crate::op::{apply2, apply_kernel2, apply_kernel3, grad_if_tracked, Kernel2, Kernel3, Op2};
 use crate::{Error, Real, Result};
 use candle_core::{Shape, Tensor, WithDType};
 use rayon::prelude::*;
@@ -10,6 +10,17 @@ use std::ops::Range;
 
 /// Points per parallel task: large enough to amortise rayon's overhead.
 const CHUNK: usize = 2048;
+
+/// Calls `$kernel::<T, D, K>(args)` for a field of `$dims` spatial dimensions: `D = 2` with its
+/// `K = 4` corners, or `D = 3` with `K = 8`, the only instances the sampling kernels have.
+macro_rules! per_dim {
+    ($dims:expr, $kernel:ident::<$t:ty>($($arg:expr),* $(,)?)) => {
+        match $dims {
+            2 => $kernel::<$t, 2, 4>($($arg),*),
+            _ => $kernel::<$t, 3, 8>($($arg),*),
+        }
+    };
+}
 
 /// Samples `field` at `points` by bilinear (2D) or trilinear (3D) interpolation.
 ///
@@ -319,10 +330,7 @@ impl Kernel2 for SampleOp {
     ) -> candle_core::Result<()> {
         let g = Geom::new(self.kind, fs.dims(), ss.dims())?;
         let coords = Coords { data: second, g: &g };
-        match g.dims {
-            2 => sample_forward::<T, 2, 4>(field, coords, &self.bc, out),
-            _ => sample_forward::<T, 3, 8>(field, coords, &self.bc, out),
-        }
+        per_dim!(g.dims, sample_forward::<T>(field, coords, &self.bc, out));
         Ok(())
     }
 }
@@ -337,23 +345,14 @@ impl Op2 for SampleOp {
     ) -> candle_core::Result<(Tensor, Tensor)> {
         // An input that tracks no gradient (a constant field or constant points) gets zeros
         // instead of a kernel run: nothing downstream can read its gradient.
-        let gf = if field.track_op() {
-            apply_kernel2(second, grad, FieldGrad { bc: self.bc, kind: self.kind, field_shape: field.shape().clone() })?
-        } else {
-            zeros_like(field)?
-        };
-        let gp = if second.track_op() {
-            apply_kernel3(field, second, grad, PointsGrad { bc: self.bc, kind: self.kind })?
-        } else {
-            zeros_like(second)?
-        };
+        let gf = grad_if_tracked(field, || {
+            apply_kernel2(second, grad, FieldGrad { bc: self.bc, kind: self.kind, field_shape: field.shape().clone() })
+        })?;
+        let gp = grad_if_tracked(second, || {
+            apply_kernel3(field, second, grad, PointsGrad { bc: self.bc, kind: self.kind })
+        })?;
         Ok((gf, gp))
     }
-}
-
-/// Zeros of the shape of `t` without allocating them (a broadcast scalar).
-fn zeros_like(t: &Tensor) -> candle_core::Result<Tensor> {
-    Tensor::zeros((), t.dtype(), t.device())?.broadcast_as(t.shape())
 }
 
 fn sample_forward<T: Real, const D: usize, const K: usize>(
@@ -406,10 +405,7 @@ impl Kernel2 for FieldGrad {
     ) -> candle_core::Result<()> {
         let g = Geom::new(self.kind, self.field_shape.dims(), ss.dims())?;
         let coords = Coords { data: second, g: &g };
-        match g.dims {
-            2 => field_grad::<T, 2, 4>(coords, grad, &self.bc, out),
-            _ => field_grad::<T, 3, 8>(coords, grad, &self.bc, out),
-        }
+        per_dim!(g.dims, field_grad::<T>(coords, grad, &self.bc, out));
         Ok(())
     }
 }
@@ -505,10 +501,7 @@ impl Kernel3 for PointsGrad {
     ) -> candle_core::Result<()> {
         let g = Geom::new(self.kind, fs.dims(), ss.dims())?;
         let coords = Coords { data: second, g: &g };
-        match g.dims {
-            2 => points_grad::<T, 2, 4>(field, coords, grad, &self.bc, out),
-            _ => points_grad::<T, 3, 8>(field, coords, grad, &self.bc, out),
-        }
+        per_dim!(g.dims, points_grad::<T>(field, coords, grad, &self.bc, out));
         Ok(())
     }
 }
