@@ -35,7 +35,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let times = [20usize, 90, 160, 230, 300, 370];
     let mut cases: Vec<(f64, Tensor)> = vec![(300.0, b.seqs[3].clone())];
     for re in TEST_RE {
-        cases.push((re, b.norm.normalize(b.held_out(re).unwrap())?));
+        cases.push((
+            re,
+            b.norm.normalize(
+                b.held_out(re).ok_or("held-out ground truth missing: generate it with the acdm_data example")?,
+            )?,
+        ));
     }
     for (re, seq) in cases {
         let prev: Vec<Tensor> = times.iter().map(|&t| seq.narrow(0, t - h, h)).collect::<Result<_, _>>()?;
