@@ -110,7 +110,7 @@ fn short_training_reduces_both_losses() {
         let window = match loss {
             ToyLoss::OneStep => 1,
             ToyLoss::MultiStep(w) => w,
-            ToyLoss::Strided { stride, .. } => stride,
+            ToyLoss::Strided { stride, .. } | ToyLoss::Graded { stride, .. } => stride,
         };
         let mut net = ScoreMlp::paper(0);
         let before = held_out_loss(&sde, &net, window, 40_000);

@@ -4,19 +4,22 @@ use crate::{registry, report};
 use pbdl_core::bench::{BenchReport, BenchRow};
 use pbdl_core::registry::TaskContext;
 
-/// Runs the bench entries of the selected crates and writes one report per crate.
-pub fn run(krate: Option<&str>, quick: bool) -> anyhow::Result<()> {
+/// Runs the bench entries of the selected crates (or only the entry named `only`) and writes one
+/// report per crate.
+pub fn run(krate: Option<&str>, quick: bool, only: Option<&str>) -> anyhow::Result<()> {
     let dir = report::target_dir().join("bench");
     std::fs::create_dir_all(&dir)?;
     let threads = rayon::current_num_threads();
     let mut failed = Vec::new();
-    for c in registry::select(krate)? {
+    let crates = registry::select(krate)?;
+    registry::check_entry(&crates, only, |c| c.bench.iter().map(|e| e.name).collect())?;
+    for c in crates {
         if c.bench.is_empty() {
             println!("bench: {} has no bench entries", c.crate_name);
             continue;
         }
         let mut rows: Vec<BenchRow> = Vec::new();
-        for entry in &c.bench {
+        for entry in c.bench.iter().filter(|e| only.is_none_or(|n| n == e.name)) {
             let out_dir = dir.join(c.crate_name);
             std::fs::create_dir_all(&out_dir)?;
             let ctx = TaskContext { out_dir, quick, threads };
@@ -29,10 +32,19 @@ pub fn run(krate: Option<&str>, quick: bool) -> anyhow::Result<()> {
                 }
             }
         }
-        rows.extend(peer_rows(&dir, c.crate_name));
+        if rows.is_empty() && only.is_some() {
+            continue;
+        }
+        let stem = match only {
+            Some(name) => format!("{}_{name}", c.crate_name),
+            None => {
+                rows.extend(peer_rows(&dir, c.crate_name));
+                c.crate_name.to_string()
+            }
+        };
         let report = BenchReport { rows };
-        let mut files = report.write(&dir, c.crate_name)?;
-        files.extend(pbdl_core::bench::plot_report(&report, &dir, c.crate_name)?);
+        let mut files = report.write(&dir, &stem)?;
+        files.extend(pbdl_core::bench::plot_report(&report, &dir, &stem)?);
         let table: Vec<Vec<String>> = report
             .rows
             .iter()

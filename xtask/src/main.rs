@@ -58,6 +58,9 @@ enum Command {
         /// Smaller sizes and fewer repetitions.
         #[arg(long)]
         quick: bool,
+        /// Only the entry of this name (its report goes to <crate>_<entry>.{json,md,png}).
+        #[arg(long)]
+        entry: Option<String>,
     },
     /// Long and extreme runs; exits non-zero when an invariant breaks.
     Stress {
@@ -66,6 +69,9 @@ enum Command {
         /// Smaller sizes and fewer steps.
         #[arg(long)]
         quick: bool,
+        /// Only the entry of this name (its report goes to <crate>_<entry>.json).
+        #[arg(long)]
+        entry: Option<String>,
     },
     /// Run a simulation scene; write its trajectory (.npz, [T, C, Y, X] per field) and PNG/GIF
     /// renders to target/pbdl/sim/<scene>/.
@@ -206,8 +212,8 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Tour { quick, out } => tour::run(quick, out.unwrap_or_else(|| report::target_dir().join("tour"))),
-        Command::Bench { krate, quick } => bench::run(krate.as_deref(), quick),
-        Command::Stress { krate, quick } => stress::run(krate.as_deref(), quick),
+        Command::Bench { krate, quick, entry } => bench::run(krate.as_deref(), quick, entry.as_deref()),
+        Command::Stress { krate, quick, entry } => stress::run(krate.as_deref(), quick, entry.as_deref()),
         Command::Sim { krate, scene, res, steps, seeds, precision, init, out } => {
             sim::run(sim::SimArgs { krate, scene, res, steps, init, out, seeds, precision })
         }

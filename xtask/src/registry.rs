@@ -29,6 +29,19 @@ pub fn select(krate: Option<&str>) -> anyhow::Result<Vec<CrateTasks>> {
     }
 }
 
+/// With `only` set, checks that one of `crates` has an entry of that name (`names` lists a
+/// crate's entries of the kind being run); otherwise lists the known names.
+pub fn check_entry(
+    crates: &[CrateTasks],
+    only: Option<&str>,
+    names: impl Fn(&CrateTasks) -> Vec<&'static str>,
+) -> anyhow::Result<()> {
+    let Some(name) = only else { return Ok(()) };
+    let known: Vec<&str> = crates.iter().flat_map(&names).collect();
+    anyhow::ensure!(known.contains(&name), "unknown entry `{name}`; entries here: {}", known.join(", "));
+    Ok(())
+}
+
 /// Prints every registered entry.
 pub fn print_list() {
     for c in all() {

@@ -12,16 +12,19 @@ struct StressEntryReport {
     checks: Vec<StressCheck>,
 }
 
-/// Runs the stress entries of the selected crates; fails if an invariant broke.
-pub fn run(krate: Option<&str>, quick: bool) -> anyhow::Result<()> {
+/// Runs the stress entries of the selected crates (or only the entry named `only`); fails if an
+/// invariant broke.
+pub fn run(krate: Option<&str>, quick: bool, only: Option<&str>) -> anyhow::Result<()> {
     let dir = report::target_dir().join("stress");
     std::fs::create_dir_all(&dir)?;
     let threads = rayon::current_num_threads();
     let mut broken = Vec::new();
-    for c in registry::select(krate)? {
+    let crates = registry::select(krate)?;
+    registry::check_entry(&crates, only, |c| c.stress.iter().map(|e| e.name).collect())?;
+    for c in crates {
         let mut entries = Vec::new();
         let mut table = Vec::new();
-        for entry in &c.stress {
+        for entry in c.stress.iter().filter(|e| only.is_none_or(|n| n == e.name)) {
             let out_dir = dir.join(c.crate_name);
             std::fs::create_dir_all(&out_dir)?;
             let ctx = TaskContext { out_dir, quick, threads };
@@ -47,10 +50,17 @@ pub fn run(krate: Option<&str>, quick: bool) -> anyhow::Result<()> {
             }
             entries.push(StressEntryReport { entry: entry.name.into(), error_message, checks });
         }
+        if entries.is_empty() && only.is_some() {
+            continue;
+        }
         println!("\n{}:", c.crate_name);
         report::print_table(&["invariant", "verdict", "first broken step", "detail"], &table);
         let json = serde_json::to_string_pretty(&entries)?;
-        let path = dir.join(format!("{}.json", c.crate_name));
+        let stem = match only {
+            Some(name) => format!("{}_{name}", c.crate_name),
+            None => c.crate_name.to_string(),
+        };
+        let path = dir.join(format!("{stem}.json"));
         pbdl_core::io::write_atomic(&path, |w| w.write_all(json.as_bytes()))?;
         println!("wrote {}", path.display());
     }

@@ -29,6 +29,8 @@ pub struct ScoreMlp {
     params: Vec<f64>,
     /// Start of each layer's weight in `params`.
     offsets: Vec<usize>,
+    /// Output `(f(x, t) - f(-x, t)) / 2` of the plain MLP `f`: a score that is odd in `x`.
+    odd: bool,
 }
 
 /// Per-layer values kept by the forward pass for the backward pass.
@@ -42,6 +44,10 @@ pub struct MlpCache {
     /// Scratch for the backward pass.
     grad_a: Vec<f64>,
     grad_b: Vec<f64>,
+    /// Odd networks: the doubled batch `[x, -x]`, its times, outputs and gradients.
+    odd_x: Vec<f64>,
+    odd_t: Vec<f64>,
+    odd_y: Vec<f64>,
 }
 
 fn elu(z: f64) -> f64 {
@@ -135,7 +141,20 @@ impl ScoreMlp {
             }
             params.extend(std::iter::repeat_n(0.0, fan_out));
         }
-        Ok(ScoreMlp { sizes, params, offsets })
+        Ok(ScoreMlp { sizes, params, offsets, odd: false })
+    }
+
+    /// The same network made odd in `x`: it outputs `(f(x, t) - f(-x, t)) / 2`, for problems
+    /// whose drift and data are symmetric under `x -> -x` (then the exact score is odd). The
+    /// symmetry is exact by construction, so the learned posterior cannot favour one sign.
+    pub fn with_odd_symmetry(mut self) -> Self {
+        self.odd = true;
+        self
+    }
+
+    /// Whether the output is odd in `x` ([`with_odd_symmetry`](Self::with_odd_symmetry)).
+    pub fn is_odd(&self) -> bool {
+        self.odd
     }
 
     /// The paper's `[30, 30, 25, 20, 10, 1]` network.
@@ -165,6 +184,26 @@ impl ScoreMlp {
     /// Forward pass for states `x` at times `t` (one per state); writes the scores into `out`
     /// and keeps what the backward pass needs in `cache`.
     pub fn forward(&self, x: &[f64], t: &[f64], out: &mut [f64], cache: &mut MlpCache) {
+        if !self.odd {
+            return self.forward_plain(x, t, out, cache);
+        }
+        let b = x.len();
+        let (mut xx, mut tt, mut yy) =
+            (std::mem::take(&mut cache.odd_x), std::mem::take(&mut cache.odd_t), std::mem::take(&mut cache.odd_y));
+        xx.clear();
+        xx.extend(x.iter().copied().chain(x.iter().map(|v| -v)));
+        tt.clear();
+        tt.extend(t.iter().chain(t.iter()));
+        yy.resize(2 * b, 0.0);
+        self.forward_plain(&xx, &tt, &mut yy, cache);
+        for i in 0..b {
+            out[i] = 0.5 * (yy[i] - yy[b + i]);
+        }
+        (cache.odd_x, cache.odd_t, cache.odd_y) = (xx, tt, yy);
+    }
+
+    /// [`forward`](Self::forward) of the plain MLP `f`.
+    fn forward_plain(&self, x: &[f64], t: &[f64], out: &mut [f64], cache: &mut MlpCache) {
         let b = x.len();
         debug_assert!(t.len() == b && out.len() == b);
         let nl = self.layers();
@@ -213,6 +252,25 @@ impl ScoreMlp {
     /// `grad_out`, adds `d loss / d params` into `grad_params` and writes `d loss / d x` into
     /// `grad_x` (same length as the batch).
     pub fn backward(&self, cache: &mut MlpCache, grad_out: &[f64], grad_params: &mut [f64], grad_x: &mut [f64]) {
+        if !self.odd {
+            return self.backward_plain(cache, grad_out, grad_params, grad_x);
+        }
+        let b = grad_out.len();
+        // Reuse the doubled-batch buffers: y (no longer needed) takes d loss / d f, x then
+        // d loss / d [x, -x].
+        let (mut gy, mut gx) = (std::mem::take(&mut cache.odd_y), std::mem::take(&mut cache.odd_x));
+        gy.clear();
+        gy.extend(grad_out.iter().map(|g| 0.5 * g).chain(grad_out.iter().map(|g| -0.5 * g)));
+        gx.resize(2 * b, 0.0);
+        self.backward_plain(cache, &gy, grad_params, &mut gx);
+        for i in 0..b {
+            grad_x[i] = gx[i] - gx[b + i];
+        }
+        (cache.odd_y, cache.odd_x) = (gy, gx);
+    }
+
+    /// [`backward`](Self::backward) of the plain MLP `f`.
+    fn backward_plain(&self, cache: &mut MlpCache, grad_out: &[f64], grad_params: &mut [f64], grad_x: &mut [f64]) {
         let b = cache.batch;
         let nl = self.layers();
         debug_assert!(grad_out.len() == b && grad_params.len() == self.params.len() && grad_x.len() == b);
@@ -298,7 +356,28 @@ mod tests {
     /// for parameters and inputs.
     #[test]
     fn backward_matches_finite_differences() {
-        let mut net = ScoreMlp::new(&[7, 5, 1], 3).unwrap();
+        check_backward(ScoreMlp::new(&[7, 5, 1], 3).unwrap(), 1e-6);
+    }
+
+    /// The odd network: exactly odd in `x`, and its backward pass matches finite differences.
+    #[test]
+    fn odd_network_is_odd_and_its_backward_matches_finite_differences() {
+        let net = ScoreMlp::new(&[7, 5, 1], 3).unwrap().with_odd_symmetry();
+        let (x, t) = ([0.3, 0.8, 0.0], [0.1, 2.0, 5.0]);
+        let neg: Vec<f64> = x.iter().map(|v| -v).collect();
+        let (a, b) = (net.eval(&x, &t), net.eval(&neg, &t));
+        for i in 0..3 {
+            assert_eq!(a[i], -b[i], "s(-x) = -s(x) at {i}");
+        }
+        assert!(a[0].abs() > 1e-6, "the odd part is not trivially zero: {a:?}");
+        // Some gradients of the odd net are exactly zero (the last bias cancels in
+        // f(x) - f(-x)), where the differences show only rounding (~1e-10): a larger floor.
+        check_backward(net, 1e-4);
+    }
+
+    /// Finite differences of `sum_i c_i s(x_i, t_i)` for a perturbed copy of `net`; relative
+    /// errors with `floor` added to the denominator.
+    fn check_backward(mut net: ScoreMlp, floor: f64) {
         // Non-zero biases so every branch of ELU is exercised.
         for (i, p) in net.params_mut().iter_mut().enumerate() {
             *p += 0.05 * ((i as f64) * 0.7).sin();
@@ -321,14 +400,14 @@ mod tests {
             let mut b = net.clone();
             b.params_mut()[i] -= h;
             let fd = (f(&a, &x) - f(&b, &x)) / (2.0 * h);
-            worst = worst.max((fd - gp[i]).abs() / (1e-6 + fd.abs().max(gp[i].abs())));
+            worst = worst.max((fd - gp[i]).abs() / (floor + fd.abs().max(gp[i].abs())));
         }
         for i in 0..4 {
             let (mut xp, mut xm) = (x, x);
             xp[i] += h;
             xm[i] -= h;
             let fd = (f(&net, &xp) - f(&net, &xm)) / (2.0 * h);
-            worst = worst.max((fd - gx[i]).abs() / (1e-6 + fd.abs().max(gx[i].abs())));
+            worst = worst.max((fd - gx[i]).abs() / (floor + fd.abs().max(gx[i].abs())));
         }
         assert!(worst < 1e-5, "worst relative error {worst}");
     }

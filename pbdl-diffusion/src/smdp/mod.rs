@@ -18,9 +18,11 @@
 //! | [`heat_net`] | the heat problem's periodic residual conv score network |
 //! | [`heat_train`] | heat training (1-step loss), plain/ODE/SDE reconstructions and their metrics |
 //! | [`toy`] | training the toy score network (stages, sliding windows); score error vs analytic |
+//! | [`experts`] | two score networks split in time, trained for a graded time grid |
 pub mod analytic;
 pub(crate) mod entries;
 pub mod euler_law;
+pub mod experts;
 pub mod heat;
 pub mod heat_net;
 pub mod heat_train;

@@ -70,6 +70,12 @@ impl ToySde {
         ToySde { drift: ToyDrift::affine(), g: 0.04, dt: 0.02, t_end: 10.0 }
     }
 
+    /// The same SDE with the finer step `dt / m` (for data resolved finer than the sampler's
+    /// coarse steps, see [`super::sampler::CoarseSteps`]).
+    pub fn refined(&self, m: usize) -> Self {
+        ToySde { dt: self.dt / m.max(1) as f64, ..*self }
+    }
+
     /// Number of steps `round(T / dt)`.
     pub fn steps(&self) -> usize {
         (self.t_end / self.dt).round() as usize

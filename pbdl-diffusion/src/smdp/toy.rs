@@ -2,8 +2,9 @@
 //! score of the affine case.
 
 use super::analytic::AffineMixture;
-use super::loss::{multi_step_loss, one_step_loss, LossWorkspace};
+use super::loss::{graded_one_step_loss, multi_step_loss, one_step_loss, LossWorkspace};
 use super::mlp::{Adam, ScoreMlp};
+use super::sampler::CoarseSteps;
 use super::sde::{chunk_rng, two_point_starts, Paths, ToySde};
 use crate::{Error, Result};
 use rand::Rng;
@@ -29,6 +30,19 @@ pub enum ToyLoss {
         /// Train both time directions instead of adding the regulariser.
         bidirectional: bool,
     },
+    /// The regularised 1-step loss on the graded time grid of
+    /// [`super::sampler::CoarseSteps`]: transitions over `stride` data steps wherever such a step
+    /// ends at or above `fine_below`, over single data steps below
+    /// ([`super::loss::graded_one_step_loss`]). Training times start at the first step.
+    Graded {
+        /// Data steps per coarse step.
+        stride: usize,
+        /// Coarse steps end at or above this time.
+        fine_below: f64,
+        /// Loss weight of a single-step sample relative to a coarse one (`stride^2` weighs both
+        /// alike in units of the score; 1 keeps the plain loss's `h^2` scaling).
+        fine_weight: f64,
+    },
 }
 
 impl ToyLoss {
@@ -37,7 +51,15 @@ impl ToyLoss {
         match *self {
             ToyLoss::OneStep => 1,
             ToyLoss::MultiStep(w) => w,
-            ToyLoss::Strided { stride, .. } => stride,
+            ToyLoss::Strided { stride, .. } | ToyLoss::Graded { stride, .. } => stride,
+        }
+    }
+
+    /// The earliest step index a training sample can start from.
+    fn first_index(&self) -> usize {
+        match *self {
+            ToyLoss::Graded { .. } => 1,
+            _ => self.span(),
         }
     }
 }
@@ -81,6 +103,9 @@ pub struct ToyTrainConfig {
     /// Euler-Maruyama sub-steps per stored data step (1: the data chain has step `dt`; the
     /// official data set integrates with `dt / 2` and stores every `dt`, i.e. 2).
     pub sim_substeps: usize,
+    /// Training samples start at times in `[lo, hi]` (an expert for one time interval, see
+    /// [`split_expert_configs`]); `(0, inf)`: everywhere.
+    pub time_range: (f64, f64),
 }
 
 impl ToyTrainConfig {
@@ -97,6 +122,7 @@ impl ToyTrainConfig {
             log_every: 1000,
             time_sampling: TimeSampling::Uniform,
             sim_substeps: 1,
+            time_range: (0.0, f64::INFINITY),
         }
     }
 
@@ -111,6 +137,7 @@ impl ToyTrainConfig {
             log_every: 1000,
             time_sampling: TimeSampling::Uniform,
             sim_substeps: 1,
+            time_range: (0.0, f64::INFINITY),
         }
     }
 
@@ -146,6 +173,19 @@ impl ToyTrainConfig {
                     w.to_string(),
                     "use a window or stride between 1 and the number of SDE steps",
                 );
+            }
+            if let ToyLoss::Graded { fine_below, fine_weight, .. } = s.loss {
+                if !(fine_below.is_finite() && fine_below >= 0.0 && fine_weight.is_finite() && fine_weight > 0.0) {
+                    return bad(
+                        "fine_below/fine_weight",
+                        format!("{fine_below}/{fine_weight}"),
+                        "use a finite, non-negative time and a positive weight",
+                    );
+                }
+            }
+            let (lo, hi) = self.time_range;
+            if !(lo >= 0.0 && hi > lo && lo.is_finite()) {
+                return bad("time_range", format!("{lo}..{hi}"), "use 0 <= lo < hi (hi may be infinite)");
             }
             if !(s.lr.is_finite() && s.lr > 0.0) {
                 return bad("lr", s.lr.to_string(), "use a positive learning rate (1e-3, then 1e-4)");
@@ -208,6 +248,35 @@ pub fn train_toy(sde: &ToySde, net: &mut ScoreMlp, cfg: &ToyTrainConfig) -> Resu
     for (si, stage) in cfg.stages.iter().enumerate() {
         let mut adam = Adam::new(net.num_params(), stage.lr);
         let window = stage.loss.span();
+        // The step indices this stage may start from: the loss's first one and the time range.
+        let (lo_t, hi_t) = cfg.time_range;
+        let first = stage.loss.first_index().max((lo_t / sde.dt - 1e-9).ceil() as usize);
+        let last = if hi_t.is_finite() { steps.min((hi_t / sde.dt + 1e-9).floor() as usize) } else { steps };
+        if first > last {
+            return Err(Error::InvalidConfig {
+                name: "time_range",
+                value: format!("{lo_t}..{hi_t} with {window} data steps per sample"),
+                hint: "give a time range that holds at least one training step",
+            });
+        }
+        // The official strided grid k = steps - stride j, restricted to [first, last].
+        let grid_j = |stride: usize| (steps - last).div_ceil(stride)..=(steps - first) / stride;
+        if let (ToyLoss::Strided { stride, .. }, TimeSampling::Uniform) = (stage.loss, cfg.time_sampling) {
+            if grid_j(stride).is_empty() {
+                return Err(Error::InvalidConfig {
+                    name: "time_range",
+                    value: format!("{lo_t}..{hi_t} with stride {stride}"),
+                    hint: "give a time range that holds a point of the strided grid (or log-uniform times)",
+                });
+            }
+        }
+        let grid = match stage.loss {
+            ToyLoss::Graded { stride, fine_below, fine_weight } => {
+                Some((CoarseSteps { stride, above: fine_below }, fine_weight))
+            }
+            _ => None,
+        };
+        let (mut h, mut w) = (vec![sde.dt; b], vec![1.0; b]);
         let mut targets = vec![vec![0.0; b]; window];
         let mut acc = 0.0;
         for u in 0..stage.updates {
@@ -216,18 +285,25 @@ pub fn train_toy(sde: &ToySde, net: &mut ScoreMlp, cfg: &ToyTrainConfig) -> Resu
                 let k = match (stage.loss, cfg.time_sampling) {
                     // The official grid: every stride-th point counted from t = T.
                     (ToyLoss::Strided { stride, .. }, TimeSampling::Uniform) => {
-                        steps - stride * rng.random_range(0..=(steps - stride) / stride)
+                        steps - stride * rng.random_range(grid_j(stride))
                     }
-                    (_, TimeSampling::Uniform) => rng.random_range(window..=steps),
+                    (_, TimeSampling::Uniform) => rng.random_range(first..=last),
                     (_, TimeSampling::LogUniform) => {
                         let u: f64 = rng.random_range(0.0..1.0);
-                        let (lo, hi) = ((window as f64).ln(), ((steps + 1) as f64).ln());
-                        ((lo + u * (hi - lo)).exp().floor() as usize).clamp(window, steps)
+                        let (lo, hi) = ((first as f64).ln(), ((last + 1) as f64).ln());
+                        ((lo + u * (hi - lo)).exp().floor() as usize).clamp(first, last)
                     }
                 };
                 let path = paths.path(p);
                 x[i] = path[k];
                 t[i] = k as f64 * sde.dt;
+                if let Some((g, fine_weight)) = grid {
+                    let stride = g.stride_at(k, sde.dt);
+                    h[i] = stride as f64 * sde.dt;
+                    w[i] = if stride < g.stride { fine_weight } else { 1.0 };
+                    prev[i] = path[k - stride];
+                    continue;
+                }
                 for (m, tg) in targets.iter_mut().enumerate() {
                     tg[i] = path[k - 1 - m];
                 }
@@ -238,6 +314,9 @@ pub fn train_toy(sde: &ToySde, net: &mut ScoreMlp, cfg: &ToyTrainConfig) -> Resu
                 ToyLoss::OneStep => one_step_loss(net, &sde.drift, sde.dt, &x, &t, &prev, Some(&mut grad), &mut ws),
                 ToyLoss::MultiStep(_) => {
                     multi_step_loss(net, &sde.drift, sde.dt, &x, &t, &targets, false, Some(&mut grad), &mut ws)
+                }
+                ToyLoss::Graded { .. } => {
+                    graded_one_step_loss(net, &sde.drift, &h, &w, &x, &t, &prev, Some(&mut grad), &mut ws)
                 }
                 ToyLoss::Strided { stride, bidirectional: false } => {
                     let h = stride as f64 * sde.dt;
