@@ -166,7 +166,11 @@ fn bench_row(
     steps: usize,
     threads: usize,
 ) -> TaskResult<BenchRow> {
-    let cfg = EvalConfig { steps, samples: 1, seed: 3, lsim_every: 0 };
+    // A short warm-up rollout first, so that one-time costs (allocator, thread pool) stay out
+    // of the time per frame.
+    let warm = EvalConfig { steps: 2, samples: 1, seed: 3, lsim_every: 0 };
+    evaluate(m, seq, &b.norm, &b.test.config, &warm, None)?;
+    let cfg = EvalConfig { steps, ..warm };
     let r = evaluate(m, seq, &b.norm, &b.test.config, &cfg, None)?;
     let (nx, ny) = b.test.config.data_size();
     Ok(BenchRow {

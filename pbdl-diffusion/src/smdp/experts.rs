@@ -55,6 +55,9 @@ pub struct SplitExpertRecipe {
     pub n_paths: usize,
     /// Batch size.
     pub batch: usize,
+    /// Make both networks odd in `x` ([`ScoreMlp::with_odd_symmetry`]): right for drifts and data
+    /// symmetric under `x -> -x`, as the toy's.
+    pub odd: bool,
 }
 
 impl SplitExpertRecipe {
@@ -69,6 +72,7 @@ impl SplitExpertRecipe {
             updates: [250_000, 250_000, 100_000],
             n_paths: 2500,
             batch: 256,
+            odd: true,
         }
     }
 
@@ -120,7 +124,8 @@ impl SplitExpertRecipe {
             batch: self.batch,
             stages,
             seed,
-            log_every: 50_000,
+            // About a dozen loss records per run.
+            log_every: (self.updates.iter().sum::<usize>() / 12).clamp(1, 50_000),
             time_sampling: TimeSampling::LogUniform,
             sim_substeps: 1,
             time_range,
@@ -148,7 +153,8 @@ impl SplitExpertRecipe {
     pub fn train(&self, sde: &ToySde, seed: u64) -> Result<(SplitScore<ScoreMlp, ScoreMlp>, [ToyTrainReport; 2])> {
         self.validate()?;
         let data = self.data_sde(sde);
-        let (mut near, mut far) = (ScoreMlp::paper(seed), ScoreMlp::paper(seed ^ 0x5EED));
+        let net = |seed| if self.odd { ScoreMlp::paper(seed).with_odd_symmetry() } else { ScoreMlp::paper(seed) };
+        let (mut near, mut far) = (net(seed), net(seed ^ 0x5EED));
         let (a, b) = rayon::join(
             || train_toy(&data, &mut near, &self.near_config(seed)),
             || train_toy(&data, &mut far, &self.far_config(seed)),

@@ -183,7 +183,8 @@ pub fn invert_step(drift: &impl ScalarDrift, h: f64, z: f64) -> f64 {
 }
 
 /// Runs `sampler` backward from states `y` at `t = T` to `t = 0` (after checking `sde` and
-/// `opts`; no states for an empty `y`). With `record`, every state is kept: `trajectory[k][i]` is
+/// `opts`; no states for an empty `y`). With `record`, every state is kept (see
+/// [`trajectory_times`] for graded grids): `trajectory[k][i]` is
 /// sample `i` at time `(steps - k) dt`; otherwise only the end.
 fn run(
     sde: &ToySde,
@@ -217,21 +218,7 @@ fn run(
         }
         _ => vec![],
     };
-    // The steps from t = T down to 0: (data index k at the start, data steps spanned, sub-step j).
-    let mut grid: Vec<(usize, usize, usize)> = Vec::with_capacity(steps * sub);
-    let mut k = steps;
-    while k > 0 {
-        let stride = opts.coarse.map_or(1, |c| c.stride_at(k, dt));
-        grid.extend((0..sub).map(|j| (k, stride, j)));
-        k -= stride;
-    }
-    if record && grid.iter().any(|g| g.1 > 1) {
-        return Err(crate::Error::InvalidConfig {
-            name: "coarse",
-            value: format!("{:?}", opts.coarse),
-            hint: "trajectories keep one state per data step: sample them without coarse steps",
-        });
-    }
+    let grid = step_grid(sde, opts);
     let chunks: Vec<Vec<Vec<f64>>> = y
         .par_chunks(CHUNK)
         .enumerate()
@@ -306,7 +293,35 @@ pub fn sample_trajectories(
     sample_trajectories_with(sde, score, y, sampler, SamplerOptions::default(), seed)
 }
 
-/// [`sample_trajectories`] with a chosen discretisation (one state per data step).
+/// The steps of a sampler run from `t = T` down to 0: `(data index k at the start, data steps
+/// spanned, sub-step j)`.
+fn step_grid(sde: &ToySde, opts: SamplerOptions) -> Vec<(usize, usize, usize)> {
+    let sub = opts.substeps.max(1);
+    let mut grid = Vec::with_capacity(sde.steps() * sub);
+    let mut k = sde.steps();
+    while k > 0 {
+        let stride = opts.coarse.map_or(1, |c| c.stride_at(k, sde.dt));
+        grid.extend((0..sub).map(|j| (k, stride, j)));
+        k -= stride;
+    }
+    grid
+}
+
+/// The times of the states that [`sample_trajectories_with`] keeps: `T`, then the end of every
+/// data step (or coarse step, with [`SamplerOptions::coarse`]).
+pub fn trajectory_times(sde: &ToySde, opts: SamplerOptions) -> Vec<f64> {
+    let sub = opts.substeps.max(1);
+    let mut t = vec![sde.steps() as f64 * sde.dt];
+    for (k, stride, j) in step_grid(sde, opts) {
+        if j + 1 == sub {
+            t.push((k - stride) as f64 * sde.dt);
+        }
+    }
+    t
+}
+
+/// [`sample_trajectories`] with a chosen discretisation: one state per data step (per coarse
+/// step where those are taken; [`trajectory_times`] gives the times).
 pub fn sample_trajectories_with(
     sde: &ToySde,
     score: &impl ScalarScore,
@@ -436,6 +451,47 @@ mod tests {
             let s = law.moments(k as f64 * 0.02).1;
             assert!((v[k] / (s * s) - 1.0).abs() < 1e-12, "step {k}: {} vs {}", v[k], s * s);
         }
+    }
+
+    /// The graded grid: coarse steps above `above`, data steps below; stride 1 is the plain grid
+    /// bit for bit; trajectories keep one state per step taken, at [`trajectory_times`].
+    #[test]
+    fn graded_grid_steps_and_trajectory_times() {
+        struct Pull;
+        impl ScalarScore for Pull {
+            fn scores(&self, x: &[f64], _t: f64, out: &mut [f64]) {
+                for (o, v) in out.iter_mut().zip(x) {
+                    *o = -(v - v.signum());
+                }
+            }
+        }
+        let sde = ToySde { t_end: 0.4, ..ToySde::paper_quadratic() };
+        let y = [-0.3, 0.2, 0.25];
+        let coarse =
+            |stride, above| SamplerOptions { coarse: Some(CoarseSteps { stride, above }), ..Default::default() };
+        for sampler in [Sampler::ReverseSde, Sampler::ProbabilityFlow] {
+            let plain = sample_trajectories(&sde, &Pull, &y, sampler, 4).unwrap();
+            let one = sample_trajectories_with(&sde, &Pull, &y, sampler, coarse(1, 0.1), 4).unwrap();
+            assert_eq!(plain, one);
+        }
+        // 20 data steps of 0.02: coarse steps of 5 while they end at or above 0.1, i.e. from
+        // 0.4 to 0.1 (three), then five single steps.
+        let opts = coarse(5, 0.1);
+        let times = trajectory_times(&sde, opts);
+        let expect = [0.4, 0.3, 0.2, 0.1, 0.08, 0.06, 0.04, 0.02, 0.0];
+        assert_eq!(times.len(), expect.len());
+        for (a, b) in times.iter().zip(expect) {
+            assert!((a - b).abs() < 1e-12, "{times:?}");
+        }
+        let traj = sample_trajectories_with(&sde, &Pull, &y, Sampler::ProbabilityFlow, opts, 4).unwrap();
+        assert_eq!(traj.len(), times.len());
+        // First coarse step by hand: x - 0.1 [P(x) - s / 2].
+        let d = ToyDrift::quadratic();
+        let h = 5.0 * sde.dt;
+        let first: Vec<f64> = y.iter().map(|&v| v - h * (d.drift(v) + 0.5 * (v - v.signum()))).collect();
+        assert_eq!(traj[1], first);
+        let bad = SamplerOptions { substeps: 2, ..opts };
+        assert!(sample_with(&sde, &Pull, &y, Sampler::ReverseSde, bad, 3).is_err());
     }
 
     /// With the model read as the 1-step minimiser, the implicit SDE step is the explicit one.
