@@ -10,7 +10,7 @@
 use super::analytic::QUADRATIC_POSTERIOR_DT002;
 use super::experts::SplitExpertRecipe;
 use super::heat::{heat_step, HeatProblem};
-use super::loss::{multi_step_loss, one_step_loss, LossWorkspace};
+use super::loss::{graded_one_step_loss, multi_step_loss, one_step_loss, LossWorkspace};
 use super::mlp::{Adam, ScoreMlp};
 use super::sampler::{
     hit_rates_with, posterior_plus_with, sample_trajectories, sample_trajectories_with, trajectory_times, Sampler,
@@ -215,6 +215,36 @@ fn bench_smdp(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         });
         rows.push(bench_row("smdp_toy_multi_step_update", &format!("window{window}_batch256"), sec, "update", 1));
     }
+
+    // The graded loss with the odd network (what the near expert trains): half the batch on
+    // coarse steps, half on fine ones.
+    let mut work = net.clone().with_odd_symmetry();
+    let h: Vec<f64> = (0..256).map(|i| if i % 2 == 0 { sde.dt } else { sde.dt / 8.0 }).collect();
+    let w: Vec<f64> = h.iter().map(|v| (sde.dt / v).powi(2)).collect();
+    let sec = median_seconds(3, reps * 10, || {
+        grad.fill(0.0);
+        let l = graded_one_step_loss(&work, &sde.drift, &h, &w, &x, &t, &prev, Some(&mut grad), &mut ws);
+        adam.step(work.params_mut(), &grad);
+        l
+    });
+    rows.push(bench_row("smdp_toy_graded_update_odd_mlp", "mlp_2536_batch256", sec, "update", 1));
+
+    // Time against error of the whole recipe: two short expert trainings, then the posterior
+    // on the graded grid against the digest's table.
+    let updates = if ctx.quick { [2000, 1000, 0] } else { [20_000, 20_000, 5_000] };
+    let recipe = SplitExpertRecipe { updates, ..SplitExpertRecipe::quadratic() };
+    let t0 = std::time::Instant::now();
+    let (experts, _) = recipe.train(&sde, 0)?;
+    let train_seconds = t0.elapsed().as_secs_f64();
+    let ys: Vec<f64> = QUADRATIC_POSTERIOR_DT002.iter().map(|p| p.0).collect();
+    let per_bin = if ctx.quick { 200 } else { 2000 };
+    let post = posterior_plus_with(&recipe.data_sde(&sde), &experts, &ys, per_bin, recipe.sampler_options(), 5)?;
+    let total: usize = updates.iter().sum();
+    let mut row =
+        bench_row("smdp_toy_split_experts", &format!("{total}_updates_each"), train_seconds, "run", ctx.threads);
+    row.error = Some(post.iter().zip(&QUADRATIC_POSTERIOR_DT002).map(|(p, r)| (p - r.1).abs()).fold(0.0, f64::max));
+    row.error_kind = "max_abs_posterior_dev_from_digest_table".into();
+    rows.push(row);
 
     let p = HeatProblem::default();
     let fields = p.random_fields(16, DType::F32, 0)?;

@@ -453,18 +453,20 @@ mod tests {
         }
     }
 
+    /// A score pulling towards `+-1`, weaker at larger `t`.
+    struct Pull;
+    impl ScalarScore for Pull {
+        fn scores(&self, x: &[f64], t: f64, out: &mut [f64]) {
+            for (o, v) in out.iter_mut().zip(x) {
+                *o = -(v - v.signum()) / (1.0 + t);
+            }
+        }
+    }
+
     /// The graded grid: coarse steps above `above`, data steps below; stride 1 is the plain grid
     /// bit for bit; trajectories keep one state per step taken, at [`trajectory_times`].
     #[test]
     fn graded_grid_steps_and_trajectory_times() {
-        struct Pull;
-        impl ScalarScore for Pull {
-            fn scores(&self, x: &[f64], _t: f64, out: &mut [f64]) {
-                for (o, v) in out.iter_mut().zip(x) {
-                    *o = -(v - v.signum());
-                }
-            }
-        }
         let sde = ToySde { t_end: 0.4, ..ToySde::paper_quadratic() };
         let y = [-0.3, 0.2, 0.25];
         let coarse =
@@ -485,10 +487,10 @@ mod tests {
         }
         let traj = sample_trajectories_with(&sde, &Pull, &y, Sampler::ProbabilityFlow, opts, 4).unwrap();
         assert_eq!(traj.len(), times.len());
-        // First coarse step by hand: x - 0.1 [P(x) - s / 2].
+        // First coarse step by hand, from t = 0.4: x - 0.1 [P(x) - s / 2].
         let d = ToyDrift::quadratic();
-        let h = 5.0 * sde.dt;
-        let first: Vec<f64> = y.iter().map(|&v| v - h * (d.drift(v) + 0.5 * (v - v.signum()))).collect();
+        let (h, t) = (5.0 * sde.dt, 20.0 * sde.dt);
+        let first: Vec<f64> = y.iter().map(|&v| v - h * (d.drift(v) + 0.5 * ((v - v.signum()) / (1.0 + t)))).collect();
         assert_eq!(traj[1], first);
         let bad = SamplerOptions { substeps: 2, ..opts };
         assert!(sample_with(&sde, &Pull, &y, Sampler::ReverseSde, bad, 3).is_err());
@@ -497,14 +499,6 @@ mod tests {
     /// With the model read as the 1-step minimiser, the implicit SDE step is the explicit one.
     #[test]
     fn implicit_one_step_sde_equals_the_explicit_sde() {
-        struct Pull;
-        impl ScalarScore for Pull {
-            fn scores(&self, x: &[f64], t: f64, out: &mut [f64]) {
-                for (o, v) in out.iter_mut().zip(x) {
-                    *o = -(v - v.signum()) / (1.0 + t);
-                }
-            }
-        }
         // Short enough that the backward quadratic flow (which blows up in finite time) stays
         // finite: from 0.45 it reaches about 1.2 at t = 0.
         let sde = ToySde { t_end: 0.2, ..ToySde::paper_quadratic() };

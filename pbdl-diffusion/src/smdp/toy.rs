@@ -104,7 +104,7 @@ pub struct ToyTrainConfig {
     /// official data set integrates with `dt / 2` and stores every `dt`, i.e. 2).
     pub sim_substeps: usize,
     /// Training samples start at times in `[lo, hi]` (an expert for one time interval, see
-    /// [`split_expert_configs`]); `(0, inf)`: everywhere.
+    /// [`super::experts::SplitExpertRecipe`]); `(0, inf)`: everywhere.
     pub time_range: (f64, f64),
 }
 
@@ -165,6 +165,10 @@ impl ToyTrainConfig {
                 "use positive counts (2500 paths, batch 256, 1 or 2 sub-steps)",
             );
         }
+        let (lo, hi) = self.time_range;
+        if !(lo >= 0.0 && hi > lo && lo.is_finite()) {
+            return bad("time_range", format!("{lo}..{hi}"), "use 0 <= lo < hi (hi may be infinite)");
+        }
         for s in &self.stages {
             let w = s.loss.span();
             if w == 0 || w > steps {
@@ -182,10 +186,6 @@ impl ToyTrainConfig {
                         "use a finite, non-negative time and a positive weight",
                     );
                 }
-            }
-            let (lo, hi) = self.time_range;
-            if !(lo >= 0.0 && hi > lo && lo.is_finite()) {
-                return bad("time_range", format!("{lo}..{hi}"), "use 0 <= lo < hi (hi may be infinite)");
             }
             if !(s.lr.is_finite() && s.lr > 0.0) {
                 return bad("lr", s.lr.to_string(), "use a positive learning rate (1e-3, then 1e-4)");
