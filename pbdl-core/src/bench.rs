@@ -127,6 +127,7 @@ pub fn format_seconds(s: f64) -> String {
 /// PNG per case (`<stem>_<case>.png`, one colour per method, sizes as labels), because a Pareto
 /// front across different problems means nothing. `<stem>.png` repeats the case with the most
 /// such rows; with no error rows at all it shows the median times instead. Returns the paths.
+#[cfg(feature = "viz")]
 pub fn plot_report(report: &BenchReport, dir: &Path, stem: &str) -> Result<Vec<PathBuf>> {
     use crate::viz::{line_plot, pareto_plot, ParetoPoint, PlotStyle, Series};
     let mut cases: Vec<&str> = Vec::new();

@@ -16,9 +16,11 @@
 //! | [`nn`] | layer/group/RMS norm, softmax and activations that train (candle's fused ones have no backward) |
 //! | [`train`] | optimisers (Adam/AdamW/SGD+momentum) from serde configs, lr schedules, gradient clipping, CSV/JSON scalar logs, progress bar, divergence guard |
 //! | [`sample`] | differentiable bilinear/trilinear sampling at points and warping (clamped or periodic), resize (nearest, bilinear, bicubic) |
+//! | [`stepper`] | the simulator seams: [`stepper::Stepper`] (state in, state out, operators listed, differentiable where it is) and [`stepper::Evolve`] (in place, adaptive step, `run_until`) |
 //! | [`threads`] | [`threads::pin_thread_count`]: fix candle's CPU thread count once per process (it otherwise re-counts cores on every matmul) |
+//! | `ndarray_interop` (feature `ndarray`) | candle tensors to and from `ndarray` arrays: buffers moved, views without copies |
 //! | [`io`] | atomic writes, checkpoints (safetensors + JSON sidecar, resume from the latest), `.npy`/`.npz` with typed errors |
-//! | [`viz`] | colormaps (viridis, blue-white-red), field and quiver PNGs (y up), rollout GIFs, line and Pareto plots with a bundled font |
+//! | `viz` (feature `viz`) | colormaps (viridis, blue-white-red), field and quiver PNGs (y up), rollout GIFs, line and Pareto plots with a bundled font |
 //!
 //! Conventions: tensors are candle `Tensor`s laid out `[batch, channel, (z,) y, x]` with x
 //! fastest; `f32` by default, `f64` where an accuracy test needs it.
@@ -30,14 +32,18 @@ mod entries;
 pub mod error;
 pub mod grad_check;
 pub mod io;
+#[cfg(feature = "ndarray")]
+pub mod ndarray_interop;
 pub mod nn;
 pub mod op;
 pub mod real;
 pub mod registry;
 pub mod sample;
 pub mod seed;
+pub mod stepper;
 pub mod threads;
 pub mod train;
+#[cfg(feature = "viz")]
 pub mod viz;
 
 pub use entries::tasks;

@@ -143,7 +143,14 @@ pub fn read_field(path: impl AsRef<Path>) -> Result<Tensor> {
             }
             Ok(arrays.remove(0).1)
         }
+        #[cfg(feature = "viz")]
         "png" => read_png(path),
+        #[cfg(not(feature = "viz"))]
+        "png" => Err(Error::invalid(
+            "read_field",
+            "path",
+            format!("{}: reading PNG needs pbdl-metrics' `viz` feature; enable it or convert to .npy", path.display()),
+        )),
         _ => Err(Error::invalid(
             "read_field",
             "path",
@@ -152,6 +159,7 @@ pub fn read_field(path: impl AsRef<Path>) -> Result<Tensor> {
     }
 }
 
+#[cfg(feature = "viz")]
 fn read_png(path: &Path) -> Result<Tensor> {
     use image::DynamicImage as D;
     let img = image::open(path)

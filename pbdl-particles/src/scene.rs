@@ -1049,8 +1049,9 @@ pub fn run_frames<T: Real>(
 
 /// Writes `<dir>/<stem>.npz` with `positions` `[T, N, D]`, `velocities` `[T, N, D]`,
 /// `density` `[T, N]`, `mass` `[T, N]`, `time` `[T]` and `fixed_positions` `[F, D]` (walls,
-/// ghosts; absent when there are none); plus `<stem>.png` (last frame) and `<stem>.gif` (all
-/// frames): particles coloured by speed (2D) or density against x coloured by velocity (1D).
+/// ghosts; absent when there are none); plus, with the `viz` feature (on by default),
+/// `<stem>.png` (last frame) and `<stem>.gif` (all frames): particles coloured by speed (2D) or
+/// density against x coloured by velocity (1D).
 /// Returns the files written.
 ///
 /// Dtypes: the particle arrays have the stepper's precision (`f64`, or `f32` for an `f32` run:
@@ -1088,7 +1089,25 @@ pub fn write_trajectory<T: Real>(
     }
     let npz = dir.join(format!("{stem}.npz"));
     pbdl_core::io::write_npz(&npz, &arrays)?;
-    let rasters = render_frames(stepper, frames, &fixed);
+    #[cfg(not(feature = "viz"))]
+    return Ok(vec![npz]);
+    #[cfg(feature = "viz")]
+    {
+        let [png, gif] = render_png_gif(stepper, frames, &fixed, dir, stem)?;
+        Ok(vec![npz, png, gif])
+    }
+}
+
+/// The last frame as a PNG and the rollout as a GIF (scatter rasters, shared colour range).
+#[cfg(feature = "viz")]
+fn render_png_gif<T: Real>(
+    stepper: &Stepper<T>,
+    frames: &[Frame],
+    fixed: &[f64],
+    dir: &Path,
+    stem: &str,
+) -> Result<[PathBuf; 2]> {
+    let rasters = render_frames(stepper, frames, fixed);
     let (h, w) = (rasters[0].h, rasters[0].w);
     let vmax = rasters.iter().flat_map(|r| r.data.iter()).filter(|v| v.is_finite()).fold(0.0f64, |a, &b| a.max(b));
     let vmin = rasters.iter().flat_map(|r| r.data.iter()).filter(|v| v.is_finite()).fold(vmax, |a, &b| a.min(b));
@@ -1110,9 +1129,10 @@ pub fn write_trajectory<T: Real>(
         w,
         &pbdl_core::viz::GifStyle { field: style, frame_delay_ms: 80, repeat: true },
     )?;
-    Ok(vec![npz, png, gif])
+    Ok([png, gif])
 }
 
+#[cfg(feature = "viz")]
 /// Scatter rasters of the frames: 2D particles coloured by speed (walls at the lowest value);
 /// 1D: density against x, coloured by velocity.
 fn render_frames<T: Real>(stepper: &Stepper<T>, frames: &[Frame], fixed: &[f64]) -> Vec<crate::render::Raster> {

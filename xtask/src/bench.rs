@@ -1,8 +1,9 @@
 //! `cargo xtask bench [crate]`: time against error in the shared schema.
 
-use crate::{registry, report};
+use crate::report;
 use pbdl_core::bench::{BenchReport, BenchRow};
-use pbdl_core::registry::TaskContext;
+use xtask::registry;
+use xtask::registry::TaskContext;
 
 /// Runs the bench entries of the selected crates (or only the entry named `only`) and writes one
 /// report per crate.

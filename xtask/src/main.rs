@@ -17,7 +17,6 @@
 mod bench;
 mod ci;
 mod metric;
-mod registry;
 mod report;
 mod sim;
 mod stress;
@@ -26,6 +25,7 @@ mod weights;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
+use xtask::registry;
 
 /// candle allocates every op output afresh; with glibc, blocks >= 128 KiB go through mmap and
 /// each step pays page faults (grid steps at 128^2+). mimalloc reuses them: see

@@ -1,16 +1,16 @@
-//! The crates whose entries xtask runs: one line per crate, nothing else to edit.
+//! The entry types and the crates whose entries xtask runs: one line per crate in [`all`].
 
-use pbdl_core::registry::CrateTasks;
+pub use pbdl_core::registry::*;
 
 /// Every crate's contribution, in tour order.
 pub fn all() -> Vec<CrateTasks> {
     vec![
-        pbdl_core::tasks(),
-        pbdl_grid::tasks(),
-        pbdl_metrics::tasks(),
-        pbdl_optim::tasks(),
-        pbdl_particles::tasks(),
-        pbdl_diffusion::tasks(),
+        crate::entries::core::tasks(),
+        crate::entries::grid::tasks(),
+        crate::entries::metrics::tasks(),
+        crate::entries::optim::tasks(),
+        crate::entries::particles::tasks(),
+        crate::entries::diffusion::tasks(),
     ]
 }
 

@@ -62,7 +62,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     println!("sim: operators {}", sim.operators().join(", "));
     let progress = pbdl_core::train::Progress::new(sim.steps() as u64);
     let started = Instant::now();
-    let traj = sim.run(|k| progress.bar().set_position(k as u64))?;
+    let traj = sim.run(|k| progress.set_position(k as u64))?;
     progress.finish();
     let wall = started.elapsed().as_secs_f64();
     let out = args.out.unwrap_or_else(|| report::target_dir().join("sim").join(&sim.scene().name));
@@ -130,7 +130,7 @@ fn run_particle_seed<T: pbdl_core::Real>(
     println!("sim: operators {}", sim.operators().join(", "));
     let progress = pbdl_core::train::Progress::new(scene.frames as u64);
     let started = Instant::now();
-    let frames = run_frames(scene, &mut sim, |f| progress.bar().set_position(f as u64))?;
+    let frames = run_frames(scene, &mut sim, |f| progress.set_position(f as u64))?;
     progress.finish();
     let wall = started.elapsed().as_secs_f64();
     let files = write_trajectory(&sim, &frames, out, &format!("{}_seed{k}", scene.name))?;

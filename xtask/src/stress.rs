@@ -1,9 +1,10 @@
 //! `cargo xtask stress [crate]`: long and extreme runs, invariants checked.
 
-use crate::{registry, report};
-use pbdl_core::registry::{StressCheck, TaskContext};
+use crate::report;
 use serde::Serialize;
 use std::io::Write as _;
+use xtask::registry;
+use xtask::registry::{StressCheck, TaskContext};
 
 #[derive(Serialize)]
 struct StressEntryReport {

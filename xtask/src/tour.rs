@@ -1,10 +1,11 @@
 //! `cargo xtask tour`: every method on its embedded default scene, one report.
 
-use crate::{registry, report};
-use pbdl_core::registry::{TaskContext, TourRow};
+use crate::report;
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
+use xtask::registry;
+use xtask::registry::{TaskContext, TourRow};
 
 #[derive(Serialize)]
 struct SummaryEntry {

@@ -9,6 +9,7 @@ use super::model::{Method, Model, ModelConfig};
 use super::train::{train, TrainConfig, TrainReport};
 use crate::Result;
 use candle_core::Tensor;
+#[cfg(feature = "viz")]
 use pbdl_core::viz::{rollout_to_gif, GifStyle};
 use std::path::{Path, PathBuf};
 
@@ -86,6 +87,7 @@ impl Benchmark {
 
 /// Writes a GIF of one channel of several rollouts stacked vertically (first row on top), each
 /// `[T, C, ny, nx]` with the same shape; the colour range is shared.
+#[cfg(feature = "viz")]
 pub fn stacked_gif(path: &Path, rows: &[&Tensor], channel: usize, every: usize) -> Result<()> {
     let (t, _, ny, nx) = rows[0].dims4()?;
     let mut frames = Vec::new();

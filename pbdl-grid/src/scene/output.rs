@@ -3,6 +3,7 @@
 use super::{SceneResult, Simulation, Trajectory};
 use crate::Error;
 use candle_core::{DType, Device, Tensor};
+#[cfg(feature = "viz")]
 use pbdl_core::viz::{self, ColorRange, FieldStyle, GifStyle, PlotStyle, Series};
 use std::path::{Path, PathBuf};
 
@@ -19,6 +20,7 @@ fn cdl<T>(r: candle_core::Result<T>) -> SceneResult<T> {
 /// trajectory as a GIF, for velocity scenes the speed `|u|` (PNG) and the vorticity (PNG + GIF, colours clipped
 /// symmetrically at the 99.5th percentile of `|w|` of the last frame);
 /// for 1D scenes a line plot of the frames and a space-time image (x across, time up).
+/// Renders need the `viz` feature (on by default); without it only the `.npz` is written.
 /// Returns the files written.
 pub fn write_trajectory(sim: &Simulation, traj: &Trajectory, dir: &Path) -> SceneResult<Vec<PathBuf>> {
     std::fs::create_dir_all(dir).map_err(|e| Error::from(pbdl_core::Error::io(dir, e)))?;
@@ -32,8 +34,24 @@ pub fn write_trajectory(sim: &Simulation, traj: &Trajectory, dir: &Path) -> Scen
     let npz = dir.join(format!("{name}.npz"));
     core(pbdl_core::io::write_npz(&npz, &arrays))?;
     files.push(npz);
+    #[cfg(feature = "viz")]
+    render_arrays(sim, traj, &arrays, dir, &mut files)?;
+    Ok(files)
+}
+
+/// PNG and GIF renders of the stacked arrays (see [`write_trajectory`]).
+#[cfg(feature = "viz")]
+fn render_arrays(
+    sim: &Simulation,
+    traj: &Trajectory,
+    arrays: &[(String, Tensor)],
+    dir: &Path,
+    files: &mut Vec<PathBuf>,
+) -> SceneResult<()> {
+    let name = &sim.scene().name;
+    let nt = traj.times.len();
     let one_d = sim.scene().grid.ny == 1;
-    for (field, t) in &arrays {
+    for (field, t) in arrays {
         if t.rank() != 4 || field == "velocity_mac" {
             continue;
         }
@@ -98,5 +116,5 @@ pub fn write_trajectory(sim: &Simulation, traj: &Trajectory, dir: &Path) -> Scen
             files.push(gif);
         }
     }
-    Ok(files)
+    Ok(())
 }

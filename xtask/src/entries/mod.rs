@@ -1,0 +1,9 @@
+//! Tour, bench and stress entries, one module per library crate. Each module has
+//! `pub fn tasks() -> CrateTasks`; [`crate::registry::all`] lists them in tour order.
+
+pub mod core;
+pub mod diffusion;
+pub mod grid;
+pub mod metrics;
+pub mod optim;
+pub mod particles;

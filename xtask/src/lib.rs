@@ -1,0 +1,11 @@
+//! The library half of `cargo xtask`: the tour, bench and stress entries of every pbdl crate and
+//! the registry that collects them. They live here, not in the library crates, so a user who
+//! depends on one pbdl crate compiles none of them.
+//!
+//! | module | what it holds |
+//! |---|---|
+//! | [`registry`] | the entry types ([`registry::Entry`], [`registry::CrateTasks`], ...) and the list of crates |
+//! | [`entries`] | one module per library crate with its tour, bench and stress entries |
+
+pub mod entries;
+pub mod registry;
