@@ -19,6 +19,7 @@
 //! | [`stepper`] | the simulator seams: [`stepper::Stepper`] (state in, state out, operators listed, differentiable where it is) and [`stepper::Evolve`] (in place, adaptive step, `run_until`) |
 //! | [`threads`] | [`threads::pin_thread_count`]: fix candle's CPU thread count once per process (it otherwise re-counts cores on every matmul) |
 //! | `ndarray_interop` (feature `ndarray`) | candle tensors to and from `ndarray` arrays: buffers moved, views without copies |
+//! | [`matmul`] | [`matmul::matmul`]: the one bounds-checked strided matrix product (gemm, runtime CPU dispatch) behind every hand-written kernel |
 //! | [`io`] | atomic writes, checkpoints (safetensors + JSON sidecar, resume from the latest), `.npy`/`.npz` with typed errors |
 //! | `viz` (feature `viz`) | colormaps (viridis, blue-white-red), field and quiver PNGs (y up), rollout GIFs, line and Pareto plots with a bundled font |
 //!
@@ -32,6 +33,7 @@ mod entries;
 pub mod error;
 pub mod grad_check;
 pub mod io;
+pub mod matmul;
 #[cfg(feature = "ndarray")]
 pub mod ndarray_interop;
 pub mod nn;

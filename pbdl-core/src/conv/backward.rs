@@ -12,7 +12,7 @@ use super::depthwise;
 use super::forward::{conv_kernel2, conv_tensor};
 use super::geometry::{expect_shape, Geometry};
 use super::im2col::Plan;
-use super::matmul::{matmul, split, Mat};
+use crate::matmul::{matmul, split, Mat};
 use crate::op::{apply2, grad_if_tracked, Kernel2, Op2};
 use crate::Real;
 use candle_core::{Shape, Tensor};
@@ -46,9 +46,9 @@ pub(crate) fn conv_grad_input<T: Real>(g: &Geometry, gy: &[T], w: &[T], gx: &mut
             let (off, n) = (lines.start * ow, lines.len() * ow);
             let gy_tile = Mat { data: &gyg[off..], rs: out_len, cs: 1 };
             if pointwise {
-                matmul(&mut gxu[off..], in_len, false, wt, gy_tile, (kg, n, cout_g), par);
+                matmul(&mut gxu[off..], in_len, false, wt, gy_tile, (kg, n, cout_g), T::one(), par);
             } else {
-                matmul(col, n, false, wt, gy_tile, (kg, n, cout_g), par);
+                matmul(col, n, false, wt, gy_tile, (kg, n, cout_g), T::one(), par);
                 plan.col2im(col, &lines, gxu);
             }
         }
@@ -95,7 +95,7 @@ pub(crate) fn conv_grad_weight<T: Real>(g: &Geometry, x: &[T], gy: &[T], gw: &mu
                         Mat { data: &col, rs: 1, cs: n }
                     };
                     let gy_tile = Mat { data: &gyg[off..], rs: out_len, cs: 1 };
-                    matmul(gwg, kg, true, gy_tile, col_t, (cout_g, kg, n), par);
+                    matmul(gwg, kg, true, gy_tile, col_t, (cout_g, kg, n), T::one(), par);
                 }
             }
             acc

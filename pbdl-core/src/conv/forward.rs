@@ -4,7 +4,7 @@ use super::backward::{grad_input_tensor, grad_weight_tensor};
 use super::depthwise;
 use super::geometry::{expect_shape, Geometry};
 use super::im2col::Plan;
-use super::matmul::{matmul, split, Mat};
+use crate::matmul::{matmul, split, Mat};
 use crate::op::{apply2, grad_if_tracked, Kernel2, Op2};
 use crate::Real;
 use candle_core::{Shape, Tensor};
@@ -42,7 +42,7 @@ pub(crate) fn conv_forward<T: Real>(g: &Geometry, x: &[T], w: &[T], y: &mut [T])
                 plan.im2col(xg, &lines, col);
                 Mat { data: col.as_slice(), rs: n, cs: 1 }
             };
-            matmul(&mut yu[off..], out_len, false, wg, cols, (cout_g, n, kg), par);
+            matmul(&mut yu[off..], out_len, false, wg, cols, (cout_g, n, kg), T::one(), par);
         }
     });
 }

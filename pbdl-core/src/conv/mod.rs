@@ -42,7 +42,6 @@ mod forward;
 mod geometry;
 mod im2col;
 mod layer;
-mod matmul;
 mod params;
 mod transpose;
 

@@ -6,6 +6,7 @@
 //! | [`optim`] | [`OptimizerConfig`] (serde: Adam, AdamW, SGD with momentum) building an [`Optim`] |
 //! | [`schedule`] | [`ScheduleConfig`] (constant, step decay, cosine + warmup, reduce-on-plateau) and [`LrScheduler`] |
 //! | [`clip`] | [`clip_grad_norm`] (returns the pre-clip norm), [`clip_grad_value`], [`ClipConfig`] |
+//! | [`flat`] | [`FlatAdam`] (candle-nn's Adam, bit for bit, on one `f64` vector) and [`clip_in_place`] for hand-written networks |
 //! | [`log`] | [`ScalarLog`]: CSV / JSON lines / JSON array, written through without losing rows |
 //! | [`progress`] | [`Progress`]: an indicatif bar, hidden in CI and when stdout is not a terminal |
 //! | [`guard`] | [`NanGuard`]: `Error::Diverged` at the first non-finite loss or gradient norm |
@@ -49,6 +50,7 @@
 //! ```
 
 pub mod clip;
+pub mod flat;
 pub mod guard;
 pub mod log;
 pub mod optim;
@@ -57,6 +59,7 @@ pub mod schedule;
 pub mod step;
 
 pub use clip::{clip_grad_norm, clip_grad_value, grad_norm, ClipConfig};
+pub use flat::{clip_in_place, global_norm, FlatAdam};
 pub use guard::NanGuard;
 pub use log::{LogFormat, LogRow, ScalarLog};
 pub use optim::{AdamConfig, AdamWConfig, Optim, OptimizerConfig, Sgd, SgdConfig};

@@ -68,7 +68,6 @@ fn elu_dz(z: f64, elu_z: f64) -> f64 {
 }
 
 /// `dst (m x n, row stride n) = [dst +] a (m x k) * b (k x n)`, strides `(row, col)` given.
-#[allow(clippy::too_many_arguments)]
 fn matmul(
     dst: &mut [f64],
     accumulate: bool,
@@ -78,41 +77,8 @@ fn matmul(
     (b_rs, b_cs): (usize, usize),
     (m, n, k): (usize, usize, usize),
 ) {
-    let extent =
-        |r: usize, c: usize, rs: usize, cs: usize| if r == 0 || c == 0 { 0 } else { (r - 1) * rs + (c - 1) * cs + 1 };
-    assert!(
-        dst.len() >= extent(m, n, n, 1) && a.len() >= extent(m, k, a_rs, a_cs) && b.len() >= extent(k, n, b_rs, b_cs)
-    );
-    if m == 0 || n == 0 || k == 0 {
-        if !accumulate {
-            dst[..m * n].fill(0.0);
-        }
-        return;
-    }
-    // SAFETY: the assert above keeps every access inside the slices; `dst` is a unique borrow.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            n as isize,
-            accumulate,
-            a.as_ptr(),
-            a_cs as isize,
-            a_rs as isize,
-            b.as_ptr(),
-            b_cs as isize,
-            b_rs as isize,
-            1.0,
-            1.0,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        )
-    }
+    use pbdl_core::matmul::{matmul, Mat, Threads};
+    matmul(dst, n, accumulate, Mat::new(a, a_rs, a_cs), Mat::new(b, b_rs, b_cs), (m, n, k), 1.0, Threads::Serial);
 }
 
 impl ScoreMlp {

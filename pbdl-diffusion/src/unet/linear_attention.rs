@@ -17,7 +17,6 @@
 
 use crate::Result;
 use candle_core::{Shape, Tensor};
-use gemm::Parallelism;
 use pbdl_core::op::{apply2, apply_kernel3, Kernel2, Kernel3, Op2};
 use pbdl_core::Real;
 use rayon::prelude::*;
@@ -63,8 +62,9 @@ fn mm<T: Real>(dst: &mut [T], a: View<T>, b: View<T>, (m, n, k): (usize, usize, 
     gemm_checked(dst, n, a, b, (m, n, k), beta, accumulate, "mm");
 }
 
-/// `dst (m x n, row stride ld) = [dst +] beta * a (m x k) b (k x n)`: the bounds-checked call
-/// into `gemm` behind [`mm`] and [`mm_into_block`]; `what` names the caller in the panics.
+/// `dst (m x n, row stride ld) = [dst +] beta * a (m x k) b (k x n)`: pbdl-core's checked
+/// product behind [`mm`] and [`mm_into_block`], serial (heads already run in parallel); `what`
+/// names the caller in the panic on an empty product.
 fn gemm_checked<T: Real>(
     dst: &mut [T],
     ld: usize,
@@ -75,36 +75,9 @@ fn gemm_checked<T: Real>(
     accumulate: bool,
     what: &str,
 ) {
-    let extent = |rows: usize, cols: usize, rs: usize, cs: usize| (rows - 1) * rs + (cols - 1) * cs + 1;
+    use pbdl_core::matmul::{matmul, Mat, Threads};
     assert!(m > 0 && n > 0 && k > 0, "{what}: empty product");
-    assert!(n <= ld && dst.len() >= extent(m, n, ld, 1), "{what}: dst too short");
-    assert!(a.0.len() >= extent(m, k, a.1, a.2) && b.0.len() >= extent(k, n, b.1, b.2), "{what}: operand too short");
-    // SAFETY: the asserts keep every access inside the slices (rows of length n <= ld at stride
-    // ld in dst); `dst` is a unique borrow, so it aliases neither operand; T is f32 or f64, both
-    // supported by gemm.
-    unsafe {
-        gemm::gemm(
-            m,
-            n,
-            k,
-            dst.as_mut_ptr(),
-            1,
-            ld as isize,
-            accumulate,
-            a.0.as_ptr(),
-            a.2 as isize,
-            a.1 as isize,
-            b.0.as_ptr(),
-            b.2 as isize,
-            b.1 as isize,
-            T::one(),
-            beta,
-            false,
-            false,
-            false,
-            Parallelism::None,
-        )
-    }
+    matmul(dst, ld, accumulate, Mat::new(a.0, a.1, a.2), Mat::new(b.0, b.1, b.2), (m, n, k), beta, Threads::Serial);
 }
 
 /// The larger of two values (`Float::max`; `Real` also sees candle's `WithDType::max`).
