@@ -11,7 +11,7 @@
 //! | [`grad_check`] | [`check_grad`] (central finite differences) and gradient-presence checks |
 //! | [`seed`] | seeded random tensors: same seed, same numbers |
 //! | [`mod@bench`] | the shared benchmark schema (time next to error) and its JSON/markdown/PNG report |
-//! | [`registry`] | how each crate contributes tour, bench and stress entries to xtask; [`tasks`] lists this crate's |
+//! | [`registry`] | the entry types xtask runs (moving to xtask) |
 //! | [`conv`] | fast differentiable conv1d/2d/3d (im2col + gemm): stride, dilation, groups, zero or circular padding; layers |
 //! | [`nn`] | layer/group/RMS norm, softmax and activations that train (candle's fused ones have no backward) |
 //! | [`train`] | optimisers (Adam/AdamW/SGD+momentum) from serde configs, lr schedules, gradient clipping, CSV/JSON scalar logs, progress bar, divergence guard |
@@ -29,7 +29,6 @@
 
 pub mod bench;
 pub mod conv;
-mod entries;
 pub mod error;
 pub mod grad_check;
 pub mod io;
@@ -48,7 +47,6 @@ pub mod train;
 #[cfg(feature = "viz")]
 pub mod viz;
 
-pub use entries::tasks;
 pub use error::{Error, Result};
 pub use grad_check::{assert_all_have_grads, assert_varmap_has_grads, check_grad, GradCheckOptions, GradCheckReport};
 pub use real::Real;
