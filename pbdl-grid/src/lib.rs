@@ -24,7 +24,8 @@
 //! | [`navier_stokes`] | [`NavierStokes`]: a stepper built from a config, listing its operators |
 //! | [`grid3d`] | 3D: [`grid3d::MacField3d`], flux-form advection, FFT projection (periodic) and MIC(0)-CG projection (walled box, [`grid3d::Cavity3d`]), [`grid3d::NavierStokes3d`] (RK4, projection per stage), the ABC exact solution |
 //! | [`error`] | [`Error`], [`Result`] |
-//! | [`mod@tasks`] | [`tasks()`]: the `cargo xtask` tour (Taylor-Green, cavity, Burgers, smoke plume, Karman street), bench and stress entries |
+//! | [`diagnostics`] | kinetic energy, relative divergence, Strouhal number by zero crossings, [`diagnostics::track_invariants`] (first step at which an invariant breaks) |
+//! | [`validation`] | published reference data: Ghia et al. (1982) cavity centrelines ([`validation::GhiaTable`], [`validation::cavity_centrelines`]) |
 //!
 //! Conventions: tensors `[batch, channel, ny, nx]`, x fastest, `f32` or `f64`. A MAC velocity has
 //! two channels, `u` on x-faces at `((i+1) dx, (j+1/2) dy)` and `v` on y-faces at
@@ -46,6 +47,7 @@
 pub mod advect;
 pub mod boundary;
 pub mod burgers;
+pub mod diagnostics;
 pub mod diffuse;
 pub mod domain;
 pub mod error;
@@ -62,8 +64,8 @@ pub mod pressure;
 pub mod scene;
 mod scratch;
 pub mod stability;
-pub mod tasks;
 pub mod time_stepping;
+pub mod validation;
 
 pub use boundary::{Bc, Boundaries, ScalarBc, ScalarBoundaries};
 pub use domain::Grid;
@@ -73,5 +75,4 @@ pub use fluid::{Fluid, FluidConfig, FluidState};
 pub use navier_stokes::{NavierStokes, NavierStokesConfig};
 pub use obstacle::{Obstacle, ObstacleMask};
 pub use pressure::PressureSolver;
-pub use tasks::tasks;
 pub use time_stepping::{ButcherTableau, Scheme};

@@ -13,27 +13,8 @@
 //! (PhiFlow 3.4 semi-Lagrangian: 0.049), Re 1000 <= 0.03 at 128^2.
 
 use candle_core::DType;
+use pbdl_grid::validation::{cavity_centrelines, interpolate, GhiaTable};
 use pbdl_grid::{Boundaries, Grid, MacField, NavierStokes, NavierStokesConfig, Scheme};
-
-/// Reads `(coordinate, value)` pairs from a Ghia table; `col` 1, 2, 3 = Re 100, 400, 1000.
-fn ghia(name: &str, col: usize) -> Vec<(f64, f64)> {
-    let path = format!("{}/tests/data/{name}", env!("CARGO_MANIFEST_DIR"));
-    std::fs::read_to_string(&path)
-        .unwrap()
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.starts_with('x') && !l.starts_with('y') && !l.trim().is_empty())
-        .map(|l| {
-            let v: Vec<f64> = l.split(',').map(|s| s.trim().parse().unwrap()).collect();
-            (v[0], v[col])
-        })
-        .collect()
-}
-
-fn interp(pts: &[(f64, f64)], x: f64) -> f64 {
-    let k = pts.windows(2).position(|w| x >= w[0].0 && x <= w[1].0).unwrap();
-    let (a, b) = (pts[k], pts[k + 1]);
-    a.1 + (b.1 - a.1) * (x - a.0) / (b.0 - a.0)
-}
 
 /// Result of one cavity run.
 struct CavityRun {
@@ -49,20 +30,9 @@ struct CavityRun {
     residual: f64,
 }
 
-/// Ghia's table column for a Reynolds number.
-fn ghia_column(re: f64) -> usize {
-    match re as u32 {
-        100 => 1,
-        400 => 2,
-        1000 => 3,
-        _ => panic!("Ghia's tables in tests/data hold Re 100, 400, 1000; got Re {re}"),
-    }
-}
-
 /// Runs the cavity at Reynolds number `re` (lid speed 1, unit box, nu = 1/re) until the
 /// velocity changes by less than `tol` per unit time (or `t_max`), and compares with Ghia.
 fn cavity(re: f64, n: usize, t_max: f64, tol: f64) -> CavityRun {
-    let col = ghia_column(re);
     let verbose = std::env::var("CAVITY_PROGRESS").is_ok();
     let grid = Grid::square(n, 1.0).unwrap();
     let bc = Boundaries::lid_driven_cavity(1.0);
@@ -90,32 +60,17 @@ fn cavity(re: f64, n: usize, t_max: f64, tol: f64) -> CavityRun {
             break;
         }
     }
-    let vals = u.values().flatten_all().unwrap().to_vec1::<f64>().unwrap();
-    let (nn, h) = (n * n, 1.0 / n as f64);
-    // u on x = 0.5 (face column n/2 - 1), cell centres in y, wall 0 and lid 1 at the ends.
-    let mut uline = vec![(0.0, 0.0)];
-    uline.extend((0..n).map(|j| ((j as f64 + 0.5) * h, vals[j * n + n / 2 - 1])));
-    uline.push((1.0, 1.0));
-    // v on y = 0.5 (face row n/2 - 1), cell centres in x, walls at the ends.
-    let mut vline = vec![(0.0, 0.0)];
-    vline.extend((0..n).map(|i| ((i as f64 + 0.5) * h, vals[nn + (n / 2 - 1) * n + i])));
-    vline.push((1.0, 0.0));
-    let eu = ghia("ghia1982_u_vertical_centerline.csv", col)
-        .iter()
-        .map(|&(y, g)| (interp(&uline, y) - g).abs())
-        .fold(0.0, f64::max);
+    let ghia = GhiaTable::for_reynolds(re).unwrap();
+    let lines = cavity_centrelines(&u).unwrap();
     if std::env::var("CAVITY_DEBUG").is_ok() {
-        for (x, g) in ghia("ghia1982_v_horizontal_centerline.csv", col) {
-            eprintln!("v x={x} ours={:.5} ghia={g}", interp(&vline, x));
+        for &(x, g) in &ghia.v_horizontal {
+            eprintln!("v x={x} ours={:.5} ghia={g}", interpolate(&lines.v, x));
         }
-        for (y, g) in ghia("ghia1982_u_vertical_centerline.csv", col) {
-            eprintln!("u y={y} ours={:.5} ghia={g}", interp(&uline, y));
+        for &(y, g) in &ghia.u_vertical {
+            eprintln!("u y={y} ours={:.5} ghia={g}", interpolate(&lines.u, y));
         }
     }
-    let ev = ghia("ghia1982_v_horizontal_centerline.csv", col)
-        .iter()
-        .map(|&(x, g)| (interp(&vline, x) - g).abs())
-        .fold(0.0, f64::max);
+    let (eu, ev) = lines.max_errors(&ghia);
     CavityRun { eu, ev, t, steps, residual }
 }
 

@@ -6,11 +6,11 @@
 //! adds about steps * eps ~ 21 * 1.2e-7 ~ 2.5e-6 at 32^3, a tenth of the discretisation error
 //! there (measured 3.2e-5), which moves the order by at most log2(1.1) ~ 0.1 in the worst case.
 
-use pbdl_core::registry::TaskContext;
+use xtask::registry::TaskContext;
 
 #[test]
 fn abc_3d_bench_entry_runs_and_converges_at_second_order() {
-    let tasks = pbdl_grid::tasks();
+    let tasks = xtask::entries::grid::tasks();
     let entry = tasks.bench.iter().find(|e| e.name == "abc_3d").expect("abc_3d is registered");
     let ctx = TaskContext { out_dir: std::env::temp_dir(), quick: true, threads: rayon::current_num_threads() };
     let t = std::time::Instant::now();
