@@ -13,7 +13,7 @@
 //! | [`iisph`] | [`Iisph`]: 2D implicit incompressible SPH (relaxed-Jacobi pressure solve to a stated density tolerance, wall particles), [`DamBreak::build_iisph`] / [`DamBreak::build_iisph_as`] |
 //! | [`render`] | particles splatted into pixel fields for PNG/GIF ([`render::scatter`]) |
 //! | [`scene`] | [`scene::Scene`]: TOML scenes (`precision = "f32"` or `"f64"`) (shock tube, dam break WCSPH/IISPH, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
-//! | [`mod@tasks`] | [`tasks()`]: tour (Sod, dam break WCSPH and IISPH), bench (neighbour search, Sod time vs error, WCSPH step), stress (dam break to T = 10, strong shocks) |
+//! | [`validation`] | [`validation::martin_moyce_1952`]: the measured dam-break surge front (embedded) |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
 //! Conventions: positions are slices of `[T; D]` (`T` = `f32` or `f64`); every solver is generic
@@ -29,7 +29,7 @@ pub mod render;
 pub mod riemann;
 pub mod scene;
 pub mod sph1d;
-pub mod tasks;
+pub mod validation;
 pub mod wcsph;
 
 pub use error::{Error, Result};
@@ -38,5 +38,4 @@ pub use kernels::{Kernel, KernelKind};
 pub use neighbors::{CellList, Domain, NeighborList};
 pub use riemann::GasState;
 pub use sph1d::{ShockTube, Sph1d, Sph1dParams};
-pub use tasks::tasks;
 pub use wcsph::{DamBreak, Wcsph, WcsphParams};

@@ -4,25 +4,16 @@
 //! (`pysph/examples/db_exp_data.py`): T = t sqrt(2g/a), Z = z/a.
 
 use pbdl_core::Real;
+use pbdl_particles::validation::martin_moyce_1952;
 use pbdl_particles::{DamBreak, WcsphParams};
-
-fn martin_moyce() -> Vec<(f64, f64)> {
-    let text = include_str!("data/dambreak_exp_data.csv");
-    text.lines()
-        .filter(|l| l.starts_with("MM1952"))
-        .map(|l| {
-            let v: Vec<&str> = l.split(',').collect();
-            (v[1].parse().unwrap(), v[2].parse().unwrap())
-        })
-        .collect()
-}
 
 /// Runs the default dam break in precision `T` through the measured times in [1, 2.5] and
 /// returns (T, Z simulated, Z measured); asserts no leak and a finite state on the way.
 fn surge_fronts<T: Real>() -> Vec<(f64, f64, f64)> {
     let scene = DamBreak::default();
     let mut sim = scene.build_as::<T>(WcsphParams::default()).unwrap();
-    let mut points: Vec<(f64, f64)> = martin_moyce().into_iter().filter(|(t, _)| (1.0..=2.5).contains(t)).collect();
+    let mut points: Vec<(f64, f64)> =
+        martin_moyce_1952().into_iter().filter(|(t, _)| (1.0..=2.5).contains(t)).collect();
     points.sort_by(|a, b| a.0.total_cmp(&b.0));
     assert_eq!(points.len(), 5);
     let mut out = Vec::new();

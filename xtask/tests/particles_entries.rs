@@ -1,12 +1,12 @@
 //! The registry entries run in quick mode and write their files.
 
-use pbdl_core::registry::TaskContext;
+use xtask::registry::TaskContext;
 
 #[test]
 fn quick_tour_and_stress_entries_run() {
     let dir = tempfile::tempdir().unwrap();
     let ctx = TaskContext { out_dir: dir.path().to_path_buf(), quick: true, threads: rayon::current_num_threads() };
-    let tasks = pbdl_particles::tasks();
+    let tasks = xtask::entries::particles::tasks();
     assert_eq!(tasks.crate_name, "particles");
     for e in &tasks.tour {
         let out = (e.run)(&ctx).unwrap_or_else(|err| panic!("tour {}: {err}", e.name));
@@ -22,13 +22,13 @@ fn quick_tour_and_stress_entries_run() {
 }
 
 /// The full stress entries (dam break to T = 10, strong shocks at 800 particles); run by
-/// `cargo xtask stress particles` or `cargo test -p pbdl-particles -- --ignored`.
+/// `cargo xtask stress particles` or `cargo test -p xtask --test particles_entries -- --ignored`.
 #[test]
 #[ignore]
 fn full_stress_entries_pass() {
     let dir = tempfile::tempdir().unwrap();
     let ctx = TaskContext { out_dir: dir.path().to_path_buf(), quick: false, threads: rayon::current_num_threads() };
-    for e in &pbdl_particles::tasks().stress {
+    for e in &xtask::entries::particles::tasks().stress {
         for c in (e.run)(&ctx).unwrap() {
             eprintln!("{}: {} ({}) {:?}", e.name, c.invariant, c.detail, c.first_broken_step);
             assert!(c.passed, "{}: {}", c.invariant, c.detail);
