@@ -31,7 +31,7 @@ use crate::lsim::{hwc_to_nchw, LsimOptions, LsimSize};
 use crate::volsim::VolsimOptions;
 use crate::weights::{weights_dir, LSIM_FILE, VOLSIM_FILE, WEIGHTS_DIR_ENV};
 use crate::{Error, Lsim, NormScope, Result, Volsim};
-use candle_core::{DType, Device, Tensor};
+use candle_core::{DType, Tensor};
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
@@ -165,7 +165,7 @@ fn read_png(path: &Path) -> Result<Tensor> {
     let img = image::open(path)
         .map_err(|e| Error::invalid("read_field", "path", format!("{}: not a readable PNG: {e}", path.display())))?;
     let (w, h) = (img.width() as usize, img.height() as usize);
-    let dev = Device::Cpu;
+    let dev = candle_core::Device::Cpu;
     let color = img.color().has_color();
     Ok(match (&img, color) {
         (D::ImageLuma8(_) | D::ImageLumaA8(_), _) => Tensor::from_vec(img.to_luma8().into_raw(), (h, w), &dev)?,

@@ -20,7 +20,6 @@
 //! | [`files`] | [`files::read_field`] (`.npy`/`.npz`/`.png`) and [`files::compare`]: any metric on two arrays from files, the library side of `cargo xtask metric` |
 //! | [`error`] | [`Error`], [`Result`] |
 //! | [`train`] | training a metric from scratch: solver-generated sequences, LSiM/VolSiM losses and "fit2" ground truth, calibration, Spearman evaluation |
-//! | [`mod@tasks`] | [`tasks()`]: tour and bench entries for `cargo xtask` |
 //!
 //! Conventions: fields are candle tensors `[batch, channel, (z,) (y,) x]`, x fastest, `f32` or
 //! `f64`; a metric returns one value per batch entry. Bad input (mismatched shapes, NaN/Inf,
@@ -49,7 +48,6 @@ pub mod files;
 mod learned;
 pub mod lsim;
 pub mod pool;
-pub mod tasks;
 pub mod train;
 pub mod volsim;
 pub mod weights;
@@ -57,5 +55,4 @@ pub mod weights;
 pub use error::{Error, Result};
 pub use learned::NormScope;
 pub use lsim::{Lsim, LsimOptions, LsimSize};
-pub use tasks::tasks;
 pub use volsim::{Volsim, VolsimOptions};

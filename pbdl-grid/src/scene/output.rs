@@ -2,7 +2,9 @@
 
 use super::{SceneResult, Simulation, Trajectory};
 use crate::Error;
-use candle_core::{DType, Device, Tensor};
+#[cfg(feature = "viz")]
+use candle_core::DType;
+use candle_core::{Device, Tensor};
 #[cfg(feature = "viz")]
 use pbdl_core::viz::{self, ColorRange, FieldStyle, GifStyle, PlotStyle, Series};
 use std::path::{Path, PathBuf};

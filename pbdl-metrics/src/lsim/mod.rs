@@ -247,6 +247,10 @@ impl Lsim {
     }
 }
 
+/// The published LSiM distances of the official repository's plume example
+/// (`lsim_example_plume{Reference,A,B}`): `[d(reference, A), d(reference, B)]`.
+pub const PUBLISHED_EXAMPLE_DISTANCES: [f64; 2] = [0.3791, 0.4433];
+
 /// Converts NumPy image layouts `[H, W, C]` or `[B, H, W, C]` into `[B, C, H, W]` (contiguous).
 ///
 /// Errors: a rank other than 3 or 4.
