@@ -14,7 +14,6 @@
 //! | [`quantum_control`] | a particle in a box steered into eigenstate 3-5 (Crank-Nicolson custom op with adjoint), and its stabilized-BPTT run |
 //! | [`racecar`] | the racecar reverse-pass reconstruction loss (transposed shared weights) for dense nets, BN + ReLU nets ([`racecar::bn_mlp`]) and conv nets ([`racecar::conv_net`]), the orthogonality baseline ([`racecar::ortho`]), procedural peak images and the SVD alignment analysis ([`racecar::svd`], [`racecar::peak_experiment`]) |
 //! | [`error`] | the crate's [`Error`] |
-//! | [`tasks`] | tour and bench entries for `cargo xtask` (HIG vs Adam vs Gauss-Newton, loss vs wall-clock) |
 //!
 //! ```
 //! use pbdl_optim::hig::{evaluate, HigConfig, HigTrainer};
@@ -39,7 +38,6 @@
 pub mod bptt;
 pub mod cartpole;
 pub mod controller;
-mod entries;
 pub mod error;
 pub mod guidance;
 pub mod hig;
@@ -48,5 +46,4 @@ pub mod physics;
 pub mod quantum_control;
 pub mod racecar;
 
-pub use entries::tasks;
 pub use error::{Error, Result};

@@ -6,7 +6,6 @@ use pbdl_core::train::ClipConfig;
 use pbdl_optim::bptt::{gradients, GradientMode};
 use pbdl_optim::cartpole::fast::{self, FastBptt, FastController};
 use pbdl_optim::cartpole::{train, CartPole, CartPoleConfig, Controller};
-use std::time::Instant;
 
 const MODES: [GradientMode; 4] = [GradientMode::F, GradientMode::P, GradientMode::S, GradientMode::C];
 
@@ -199,31 +198,4 @@ fn bad_input_is_a_typed_error() {
     let wide = FastController::with_zero_last_layer(p.state_dim(), 9, 0).unwrap();
     let err = bptt.gradients(&wide, &[0.0; 12], GradientMode::F, &ClipConfig::None).unwrap_err();
     assert!(err.to_string().contains("width"), "{err}");
-}
-
-/// The bench entry `cartpole` in quick mode (20 epochs, 12 runs) writes its rows and plot.
-#[test]
-#[ignore = "runs the quick bench entry: 12 runs of 640 Adam steps, about 1-2 min"]
-fn quick_bench_entry_runs() {
-    let tasks = pbdl_optim::tasks();
-    let entry = tasks.bench.iter().find(|e| e.name == "cartpole").expect("bench entry cartpole");
-    let out_dir = std::env::temp_dir().join("pbdl_cartpole_quick_bench");
-    std::fs::create_dir_all(&out_dir).unwrap();
-    let ctx = pbdl_core::registry::TaskContext { out_dir: out_dir.clone(), quick: true, threads: 1 };
-    let t = Instant::now();
-    let rows = (entry.run)(&ctx).unwrap();
-    println!("{} s", t.elapsed().as_secs_f64());
-    assert_eq!(rows.len(), 12);
-    for r in &rows {
-        println!(
-            "{} {} {} {:.3} ms/update, test loss {:.4}",
-            r.case,
-            r.method,
-            r.size,
-            r.seconds * 1e3,
-            r.error.unwrap()
-        );
-        assert!(r.error.is_some_and(|e| (0.0..=2.0).contains(&e)));
-    }
-    assert!(out_dir.join("cartpole_modes.png").exists());
 }

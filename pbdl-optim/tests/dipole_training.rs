@@ -107,24 +107,3 @@ fn dipole_hig_and_gauss_newton_with_f32_solve() {
         eprintln!("{name}: {step} steps in {elapsed:.1} s\n  {}", points.join(" "));
     }
 }
-
-/// The `dipole` bench entry in quick mode (20 s per optimiser): rows in the shared schema and
-/// the PNG curve are written.
-#[test]
-#[ignore = "runs the dipole bench entry in quick mode: 3 x 20 s of training plus evaluations, ~1.5 min"]
-fn dipole_bench_entry_quick() {
-    use pbdl_core::registry::TaskContext;
-    let out_dir = std::env::temp_dir().join(format!("pbdl_dipole_bench_{}", std::process::id()));
-    std::fs::create_dir_all(&out_dir).unwrap();
-    let ctx = TaskContext { out_dir: out_dir.clone(), quick: true, threads: rayon::current_num_threads() };
-    let entry = pbdl_optim::tasks().bench.into_iter().find(|e| e.name == "dipole").expect("dipole bench entry");
-    let rows = (entry.run)(&ctx).unwrap();
-    for r in &rows {
-        eprintln!("{} {} {} {:.3} s/{} {:?} {}", r.case, r.method, r.size, r.seconds, r.unit, r.error, r.error_kind);
-    }
-    assert_eq!(rows.iter().map(|r| r.method.as_str()).collect::<Vec<_>>(), ["hig", "adam", "gauss_newton"]);
-    assert!(rows.iter().all(|r| r.error.is_some_and(|e| e.is_finite() && e <= 1.0)));
-    let png = out_dir.join("loss_vs_time_dipole.png");
-    assert!(std::fs::metadata(&png).map(|m| m.len() > 1000).unwrap_or(false), "{}", png.display());
-    eprintln!("plot: {}", png.display());
-}

@@ -175,13 +175,6 @@ fn short_training_prints_mode_losses() {
     }
 }
 
-/// The full (non-quick) bench entry `guidance`, printing its rows: the numbers of the report.
-#[test]
-#[ignore = "the full bench entry; about 5 min on 2 idle cores (12 runs of 320 Adam steps)"]
-fn bench_entry_full_prints_rows() {
-    common::print_full_bench_entry("guidance");
-}
-
 /// The official runs' value-clipping variant (clip 1.0) for F and C at the two weights where
 /// unclipped F beat C; prints the final test losses.
 #[test]

@@ -167,13 +167,6 @@ fn short_training_prints_mode_losses() {
     }
 }
 
-/// The full (non-quick) bench entry `quantum_control`, printing its rows: the numbers of the report.
-#[test]
-#[ignore = "the full bench entry; about 10-15 min on 2 idle cores (9 runs of 320 Adam steps of 128-step rollouts)"]
-fn bench_entry_full_prints_rows() {
-    common::print_full_bench_entry("quantum_control");
-}
-
 /// The official runs' value-clipping variant (clip 1.0) for F and C on target 4, where
 /// unclipped F beat C; prints the final test losses.
 #[test]

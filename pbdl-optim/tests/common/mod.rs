@@ -60,22 +60,3 @@ pub fn print_run(mode: GradientMode, run: &BpttRun, steps: usize, digits: usize,
         run.agreement
     );
 }
-
-/// Runs the full (non-quick) bench entry `name` of pbdl-optim and prints its rows.
-pub fn print_full_bench_entry(name: &str) {
-    let tasks = pbdl_optim::tasks();
-    let entry = tasks.bench.iter().find(|e| e.name == name).expect("entry registered");
-    let out_dir = std::env::temp_dir().join(format!("pbdl_optim_bench_{name}"));
-    std::fs::create_dir_all(&out_dir).unwrap();
-    let ctx = pbdl_core::registry::TaskContext { out_dir, quick: false, threads: rayon::current_num_threads() };
-    for row in (entry.run)(&ctx).unwrap() {
-        println!(
-            "{} {} {}: loss {:.4} ({:.1} ms/step)",
-            row.case,
-            row.method,
-            row.size,
-            row.error.unwrap(),
-            1e3 * row.seconds
-        );
-    }
-}
