@@ -10,8 +10,6 @@
 //! | [`op`] | a toolkit for differentiable candle custom ops (forward + backward in one place) |
 //! | [`grad_check`] | [`check_grad`] (central finite differences) and gradient-presence checks |
 //! | [`seed`] | seeded random tensors: same seed, same numbers |
-//! | [`mod@bench`] | the shared benchmark schema (time next to error) and its JSON/markdown/PNG report |
-//! | [`registry`] | the entry types xtask runs (moving to xtask) |
 //! | [`conv`] | fast differentiable conv1d/2d/3d (im2col + gemm): stride, dilation, groups, zero or circular padding; layers |
 //! | [`nn`] | layer/group/RMS norm, softmax and activations that train (candle's fused ones have no backward) |
 //! | [`train`] | optimisers (Adam/AdamW/SGD+momentum) from serde configs, lr schedules, gradient clipping, CSV/JSON scalar logs, progress bar, divergence guard |
@@ -27,7 +25,6 @@
 //! fastest; `f32` by default, `f64` where an accuracy test needs it.
 #![warn(missing_docs)]
 
-pub mod bench;
 pub mod conv;
 pub mod error;
 pub mod grad_check;
@@ -38,7 +35,6 @@ pub mod ndarray_interop;
 pub mod nn;
 pub mod op;
 pub mod real;
-pub mod registry;
 pub mod sample;
 pub mod seed;
 pub mod stepper;

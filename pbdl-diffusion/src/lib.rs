@@ -13,7 +13,6 @@
 //! | [`uncertainty`] | a diffusion surrogate that predicts mean and standard-deviation fields of an unsteady wake from samples |
 //! | [`acdm`] | autoregressive conditional diffusion on our own cylinder-flow data, baselines, rollouts and rollout metrics |
 //! | [`error`] | [`Error`], [`Result`] |
-//! | [`mod@tasks`] | [`tasks()`]: `cargo xtask` tour, bench and stress entries |
 #![warn(missing_docs)]
 
 pub mod acdm;
@@ -21,9 +20,7 @@ pub mod ddpm;
 pub mod error;
 pub mod schedule;
 pub mod smdp;
-pub mod tasks;
 pub mod uncertainty;
 pub mod unet;
 
 pub use error::{Error, Result};
-pub use tasks::tasks;

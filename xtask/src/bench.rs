@@ -1,7 +1,7 @@
 //! `cargo xtask bench [crate]`: time against error in the shared schema.
 
 use crate::report;
-use pbdl_core::bench::{BenchReport, BenchRow};
+use xtask::bench_schema::{BenchReport, BenchRow};
 use xtask::registry;
 use xtask::registry::TaskContext;
 
@@ -45,7 +45,7 @@ pub fn run(krate: Option<&str>, quick: bool, only: Option<&str>) -> anyhow::Resu
         };
         let report = BenchReport { rows };
         let mut files = report.write(&dir, &stem)?;
-        files.extend(pbdl_core::bench::plot_report(&report, &dir, &stem)?);
+        files.extend(xtask::bench_schema::plot_report(&report, &dir, &stem)?);
         let table: Vec<Vec<String>> = report
             .rows
             .iter()
@@ -54,7 +54,7 @@ pub fn run(krate: Option<&str>, quick: bool, only: Option<&str>) -> anyhow::Resu
                     r.case.clone(),
                     r.method.clone(),
                     r.size.clone(),
-                    pbdl_core::bench::format_seconds(r.seconds),
+                    xtask::bench_schema::format_seconds(r.seconds),
                     r.unit.clone(),
                     report::fmt_error(r.error),
                     r.error_kind.clone(),

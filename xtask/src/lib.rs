@@ -4,8 +4,10 @@
 //!
 //! | module | what it holds |
 //! |---|---|
+//! | [`bench_schema`] | the shared bench schema ([`bench_schema::BenchRow`]: time next to error), its JSON/markdown/PNG report, [`bench_schema::median_seconds`] |
 //! | [`registry`] | the entry types ([`registry::Entry`], [`registry::CrateTasks`], ...) and the list of crates |
 //! | [`entries`] | one module per library crate with its tour, bench and stress entries |
 
+pub mod bench_schema;
 pub mod entries;
 pub mod registry;

@@ -95,7 +95,7 @@ pub fn run(quick: bool, out: PathBuf) -> anyhow::Result<()> {
         for r in &s.rows {
             rows.push(vec![
                 format!("{}/{}: {}", s.krate, s.entry, r.item),
-                pbdl_core::bench::format_seconds(r.seconds),
+                xtask::bench_schema::format_seconds(r.seconds),
                 report::fmt_error(r.error),
                 r.error_kind.clone(),
                 r.note.clone(),

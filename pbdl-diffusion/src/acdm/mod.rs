@@ -12,7 +12,6 @@
 //! | [`metrics`] | MSE, temporal stability, probe spectrum / Strouhal number, sample spread |
 pub mod benchmark;
 pub mod data;
-pub(crate) mod entries;
 pub mod eval;
 pub mod metrics;
 pub mod model;

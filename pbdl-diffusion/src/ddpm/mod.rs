@@ -304,4 +304,3 @@ fn predict_checked<M: NoisePredictor + ?Sized>(
     Ok(out)
 }
 
-pub(crate) mod entries;

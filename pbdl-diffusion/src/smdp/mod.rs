@@ -20,7 +20,6 @@
 //! | [`toy`] | training the toy score network (stages, sliding windows); score error vs analytic |
 //! | [`experts`] | two score networks split in time, trained for a graded time grid |
 pub mod analytic;
-pub(crate) mod entries;
 pub mod euler_law;
 pub mod experts;
 pub mod heat;

@@ -34,7 +34,6 @@
 //! ```
 
 pub mod data;
-pub(crate) mod entries;
 
 pub use data::{condition, simulate_wake, FieldStats, WakeCase, WakeConfig};
 

@@ -18,7 +18,6 @@
 mod acdm;
 mod aifnet;
 mod attention;
-pub(crate) mod entries;
 mod layers;
 mod linear_attention;
 pub mod workload;

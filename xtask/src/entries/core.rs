@@ -6,14 +6,14 @@
 //! * stress: randomised conv configurations against a direct sum, sampling at extreme
 //!   coordinates, gradient checks over many seeds.
 
-use pbdl_core::bench::{median_seconds, BenchRow};
+use crate::bench_schema::{median_seconds, BenchRow};
+use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
+use candle_core::{DType, Device, Tensor, Var};
 use pbdl_core::conv::{conv2d, conv3d, Conv2dParams, Conv3dParams, ConvParams, PaddingMode};
 use pbdl_core::io::{load_varmap, save_varmap, CheckpointMeta};
-use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
 use pbdl_core::sample::{grid_sample, warp, Boundary};
 use pbdl_core::viz;
 use pbdl_core::{check_grad, seed, GradCheckOptions};
-use candle_core::{DType, Device, Tensor, Var};
 use std::f64::consts::PI;
 use std::time::Instant;
 
@@ -112,9 +112,9 @@ fn tour_conv(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     ];
     let markdown = format!(
         "| implementation | median time | rel. difference |\n|---|---:|---:|\n| pbdl | {} | {:.2e} |\n| candle 0.11 | {} | (reference) |\n\nSpeed-up {:.2}x on {} threads.",
-        pbdl_core::bench::format_seconds(c.ours_s),
+        crate::bench_schema::format_seconds(c.ours_s),
         c.rel_err,
-        pbdl_core::bench::format_seconds(c.candle_s),
+        crate::bench_schema::format_seconds(c.candle_s),
         c.candle_s / c.ours_s,
         ctx.threads
     );

@@ -25,9 +25,9 @@
 //! * stress `karman_re1000`: the cylinder scene at Re = 1000: finite, divergence bounded, speed
 //!   bounded.
 
+use crate::bench_schema::{median_seconds, BenchRow};
 use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::{DType, Device, Tensor};
-use pbdl_core::bench::{median_seconds, BenchRow};
 use pbdl_core::viz::{self, PlotStyle, Series};
 use pbdl_grid::burgers::cole_hopf_sine;
 use pbdl_grid::diagnostics::{strouhal_zero_crossings, track_invariants, InvariantBounds, InvariantReport};

@@ -9,9 +9,9 @@
 //!   `peer` rows (measured elsewhere on 2 contended threads, not by this entry).
 //! * bench `classic`: MSE, SSIM, Pearson, Spearman and the energy spectrum on 16 fields of 128x128.
 
+use crate::bench_schema::{format_seconds, median_seconds, BenchRow};
 use crate::registry::{CrateTasks, Entry, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::{DType, Device, Tensor};
-use pbdl_core::bench::{format_seconds, median_seconds, BenchRow};
 use pbdl_core::seed;
 use pbdl_metrics::classic::{energy_spectrum, mse, pearson, spearman, ssim2d, SsimConfig};
 use pbdl_metrics::lsim::{hwc_to_nchw, LsimOptions, LsimSize, PUBLISHED_EXAMPLE_DISTANCES as LSIM_PUBLISHED};

@@ -19,8 +19,8 @@
 //!   downloaded): |cos| of the leading and of the two best-aligned singular vectors.
 //! * tour `hig_vs_adam`: the same on the linear chain with a short budget.
 
+use crate::bench_schema::BenchRow;
 use crate::registry::{CrateTasks, Entry, TaskContext, TaskResult, TourOutcome, TourRow};
-use pbdl_core::bench::BenchRow;
 use pbdl_core::viz::{line_plot, PlotStyle, Series};
 use pbdl_optim::hig::{run_curve_with_loss, Budget, Curve, Decomposition, HigConfig, Loss, Method};
 use pbdl_optim::mlp::{Activation, Mlp};
@@ -278,7 +278,7 @@ fn tour_hig_vs_adam(ctx: &TaskContext) -> TaskResult<TourOutcome> {
         md.push_str(&format!(
             "| {name} | {} | {} | {:.3e} |\n",
             c.steps.last().unwrap_or(&0),
-            pbdl_core::bench::format_seconds(c.median_step_seconds()),
+            crate::bench_schema::format_seconds(c.median_step_seconds()),
             c.final_loss()
         ));
         tour_rows.push(TourRow {

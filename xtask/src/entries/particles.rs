@@ -10,8 +10,8 @@
 //!   shock tubes stay finite with positive density and energy; the IISPH dam break to T = 10
 //!   with a converging pressure solve and at most 1% average density error.
 
+use crate::bench_schema::{format_seconds, median_seconds, BenchRow};
 use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
-use pbdl_core::bench::{format_seconds, median_seconds, BenchRow};
 use pbdl_core::viz::{self, ColorRange, FieldStyle, GifStyle, PlotStyle, Series};
 use pbdl_particles::neighbors::{CellList, Domain, NeighborList};
 use pbdl_particles::render;

@@ -7,27 +7,27 @@
 //! * stress: long forward integrations, the explicit-Euler stability limit, reverse samplers
 //!   over the whole horizon, and the heat step's energy decay and mean conservation.
 
-use super::analytic::QUADRATIC_POSTERIOR_DT002;
-use super::experts::SplitExpertRecipe;
-use super::heat::{heat_step, HeatProblem};
-use super::loss::{graded_one_step_loss, multi_step_loss, one_step_loss, LossWorkspace};
-use super::mlp::{Adam, ScoreMlp};
-use super::sampler::{
+use crate::bench_schema::{median_seconds, BenchRow};
+use crate::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
+use candle_core::DType;
+use pbdl_core::viz::{line_plot, PlotStyle, Series};
+use pbdl_diffusion::smdp::analytic::QUADRATIC_POSTERIOR_DT002;
+use pbdl_diffusion::smdp::experts::SplitExpertRecipe;
+use pbdl_diffusion::smdp::heat::{heat_step, HeatProblem};
+use pbdl_diffusion::smdp::loss::{graded_one_step_loss, multi_step_loss, one_step_loss, LossWorkspace};
+use pbdl_diffusion::smdp::mlp::{Adam, ScoreMlp};
+use pbdl_diffusion::smdp::sampler::{
     hit_rates_with, posterior_plus_with, sample_trajectories, sample_trajectories_with, trajectory_times, Sampler,
 };
-use super::sde::{mean_std, two_point_starts, ToySde};
-use super::toy::{train_toy, TimeSampling, ToyTrainConfig};
-use candle_core::DType;
-use pbdl_core::bench::{median_seconds, BenchRow};
-use pbdl_core::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
-use pbdl_core::viz::{line_plot, PlotStyle, Series};
+use pbdl_diffusion::smdp::sde::{mean_std, two_point_starts, ToySde};
+use pbdl_diffusion::smdp::toy::{train_toy, TimeSampling, ToyTrainConfig};
 use std::time::Instant;
 
 /// Tour, bench and stress entries of this part.
-pub(crate) type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
+pub type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
 
 /// This part's entries.
-pub(crate) fn entries() -> Entries {
+pub fn entries() -> Entries {
     (
         vec![Entry {
             name: "smdp_toy",

@@ -11,7 +11,7 @@
 //! plus a markdown table beside it. Peers (PhiFlow, JAX-CFD, candle, PyTorch, ...) use the same
 //! rows with `peer = true`, so one plot can show everybody's time against error.
 
-use crate::{io::write_atomic, Error, Result};
+use pbdl_core::{io::write_atomic, Error, Result};
 use serde::{Deserialize, Serialize};
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -127,9 +127,8 @@ pub fn format_seconds(s: f64) -> String {
 /// PNG per case (`<stem>_<case>.png`, one colour per method, sizes as labels), because a Pareto
 /// front across different problems means nothing. `<stem>.png` repeats the case with the most
 /// such rows; with no error rows at all it shows the median times instead. Returns the paths.
-#[cfg(feature = "viz")]
 pub fn plot_report(report: &BenchReport, dir: &Path, stem: &str) -> Result<Vec<PathBuf>> {
-    use crate::viz::{line_plot, pareto_plot, ParetoPoint, PlotStyle, Series};
+    use pbdl_core::viz::{line_plot, pareto_plot, ParetoPoint, PlotStyle, Series};
     let mut cases: Vec<&str> = Vec::new();
     for r in &report.rows {
         if !cases.contains(&r.case.as_str()) {

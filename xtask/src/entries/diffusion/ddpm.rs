@@ -3,7 +3,7 @@
 //! * bench `ddpm_oracle_sampling`: sampling time against error for ancestral DDPM (cosine
 //!   schedules with R = 20, 100, 1000 steps) and deterministic DDIM (k = 5, 10, 20, 50 steps of a
 //!   T = 1000 cosine schedule) with the exact noise predictor for Gaussian data
-//!   ([`super::GaussianOracle`]), so every error is the sampler's own discretisation error.
+//!   ([`pbdl_diffusion::ddpm::GaussianOracle`]), so every error is the sampler's own discretisation error.
 //!   `error` is the largest relative error of the output variance over two channels
 //!   (`N(1.5, 0.5^2)` and `N(-0.5, 2^2)`), computed exactly: the samplers are affine maps plus
 //!   Gaussian noise for this predictor (DDIM: the sampler itself run on start values 0 and 1;
@@ -11,18 +11,18 @@
 //!   sample of a `[64, 2, 16, 16]` batch.
 //! * tour `ddpm_vs_ddim`: the same rows (quick sizes) and their time-vs-error plot (PNG).
 
-use super::{Conditioning, Diffusion, GaussianOracle};
-use crate::schedule::{NoiseSchedule, COSINE_S};
+use crate::bench_schema::{median_seconds, BenchRow};
+use crate::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::{DType, Device, Tensor};
-use pbdl_core::bench::{median_seconds, BenchRow};
-use pbdl_core::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
 use pbdl_core::viz::{pareto_plot, ParetoPoint, PlotStyle};
+use pbdl_diffusion::ddpm::{Conditioning, Diffusion, GaussianOracle};
+use pbdl_diffusion::schedule::{NoiseSchedule, COSINE_S};
 
 /// Tour, bench and stress entries of this part.
-pub(crate) type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
+pub type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
 
 /// This part's entries.
-pub(crate) fn entries() -> Entries {
+pub fn entries() -> Entries {
     (
         vec![Entry {
             name: "ddpm_vs_ddim",

@@ -18,18 +18,18 @@
 //! level). The baselines map smooth fields and train at 16 (the official long-rollout study
 //! also cut the U-Net baseline's width 8x, to 16).
 
-use super::benchmark::{stacked_gif, Benchmark};
-use super::data::{default_cache_dir, CylinderConfig, Sequence, CHANNELS};
-use super::eval::{evaluate, EvalConfig, EvalReport};
-use super::model::{Method, Model, ModelConfig, Sampler};
-use super::rollout::{rollout, FramePredictor};
-use crate::Error;
+use crate::bench_schema::BenchRow;
+use crate::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::Tensor;
-use pbdl_core::bench::BenchRow;
-use pbdl_core::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
+use pbdl_diffusion::acdm::benchmark::{stacked_gif, Benchmark};
+use pbdl_diffusion::acdm::data::{default_cache_dir, CylinderConfig, Sequence, CHANNELS};
+use pbdl_diffusion::acdm::eval::{evaluate, EvalConfig, EvalReport};
+use pbdl_diffusion::acdm::model::{Method, Model, ModelConfig, Sampler};
+use pbdl_diffusion::acdm::rollout::{rollout, FramePredictor};
+use pbdl_diffusion::Error;
 
 /// Tour, bench and stress entries of this part.
-pub(crate) type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
+pub type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
 
 /// U-Net width of the small baselines (official: 128; their long-rollout study: 16).
 pub const DIM: usize = 16;
@@ -46,7 +46,7 @@ pub const BENCH_ROLLOUT: usize = 60;
 const RE: f64 = 950.0;
 
 /// This part's entries.
-pub(crate) fn entries() -> Entries {
+pub fn entries() -> Entries {
     (
         vec![Entry {
             name: "acdm_cylinder",
@@ -104,7 +104,7 @@ fn tour(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     let seq = held_out(&b)?;
     let n = if ctx.quick { 10 } else { 200 };
     let cfg = EvalConfig { steps: n, samples: 1, seed: 1, lsim_every: 10 };
-    let lsim = super::eval::load_lsim();
+    let lsim = pbdl_diffusion::acdm::eval::load_lsim();
     let mut rows = Vec::new();
     let mut reports: Vec<EvalReport> = Vec::new();
     for m in [&acdm as &dyn FramePredictor, &unet] {
@@ -252,7 +252,7 @@ fn stress(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             Err(Error::InvalidConfig { .. })
         ),
         matches!(
-            super::data::generate(&CylinderConfig { sim_nx: 7, ..CylinderConfig::tiny() }, &[100.0]),
+            pbdl_diffusion::acdm::data::generate(&CylinderConfig { sim_nx: 7, ..CylinderConfig::tiny() }, &[100.0]),
             Err(Error::InvalidConfig { .. })
         ),
     ];

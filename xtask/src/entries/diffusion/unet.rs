@@ -1,15 +1,15 @@
 //! This part's `cargo xtask` entries (tour, bench, stress): the ACDM U-Net's training and
 //! sampling steps.
 
-use super::workload::{UnetFixture, UnetWorkload};
-use pbdl_core::bench::{median_seconds, BenchRow};
-use pbdl_core::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome};
+use crate::bench_schema::{median_seconds, BenchRow};
+use crate::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome};
+use pbdl_diffusion::unet::workload::{UnetFixture, UnetWorkload};
 
 /// Tour, bench and stress entries of this part.
-pub(crate) type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
+pub type Entries = (Vec<Entry<TourOutcome>>, Vec<Entry<Vec<BenchRow>>>, Vec<Entry<Vec<StressCheck>>>);
 
 /// This part's entries: one bench.
-pub(crate) fn entries() -> Entries {
+pub fn entries() -> Entries {
     let bench = vec![Entry {
         name: "acdm_unet",
         about: "ACDM U-Net, f32: training step (forward, smooth-L1, backward, Adam) and sampling step (forward)",
