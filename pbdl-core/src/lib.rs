@@ -7,6 +7,7 @@
 //! |---|---|
 //! | [`error`] | the crate's [`Error`] enum and shape/dtype/finiteness checks |
 //! | [`real`] | the [`Real`] float trait (`f32`, `f64`) that kernels are generic over |
+//! | [`noise`] | seeded noise: independent streams of one seed ([`noise::stream_seed`]), smooth periodic power-law fields ([`noise::power_law_noise`]) |
 //! | [`op`] | a toolkit for differentiable candle custom ops (forward + backward in one place) |
 //! | [`grad_check`] | [`check_grad`] (central finite differences) and gradient-presence checks |
 //! | [`seed`] | seeded random tensors: same seed, same numbers |
@@ -33,6 +34,7 @@ pub mod matmul;
 #[cfg(feature = "ndarray")]
 pub mod ndarray_interop;
 pub mod nn;
+pub mod noise;
 pub mod op;
 pub mod real;
 pub mod sample;

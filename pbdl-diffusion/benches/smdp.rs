@@ -12,7 +12,7 @@ use candle_core::{DType, Var};
 use criterion::{criterion_group, Criterion};
 use pbdl_diffusion::smdp::heat::{heat_step, HeatProblem};
 use pbdl_diffusion::smdp::loss::{multi_step_loss, one_step_loss, LossWorkspace};
-use pbdl_diffusion::smdp::mlp::{Adam, ScoreMlp};
+use pbdl_diffusion::smdp::mlp::{paper_adam, ScoreMlp};
 use pbdl_diffusion::smdp::sampler::{sample, Sampler};
 use pbdl_diffusion::smdp::sde::{two_point_starts, ToySde};
 
@@ -29,21 +29,21 @@ fn smdp(c: &mut Criterion) {
     let t: Vec<f64> = (0..256).map(|p| k(p) as f64 * sde.dt).collect();
     let targets: Vec<Vec<f64>> = (0..8).map(|m| (0..256).map(|p| paths.path(p)[k(p) - 1 - m]).collect()).collect();
     let mut net = ScoreMlp::paper(0);
-    let mut adam = Adam::new(net.num_params(), 1e-5);
+    let mut adam = paper_adam(net.num_params(), 1e-5);
     let mut grad = vec![0.0; net.num_params()];
     let mut ws = LossWorkspace::default();
     g.bench_function("toy_one_step_update_b256", |b| {
         b.iter(|| {
             grad.fill(0.0);
             one_step_loss(&net, &sde.drift, sde.dt, &x, &t, &targets[0], Some(&mut grad), &mut ws);
-            adam.step(net.params_mut(), &grad);
+            adam.step(net.params_mut(), &grad).unwrap();
         })
     });
     g.bench_function("toy_multi_step_update_w8_b256", |b| {
         b.iter(|| {
             grad.fill(0.0);
             multi_step_loss(&net, &sde.drift, sde.dt, &x, &t, &targets, false, Some(&mut grad), &mut ws);
-            adam.step(net.params_mut(), &grad);
+            adam.step(net.params_mut(), &grad).unwrap();
         })
     });
     let y: Vec<f64> = (0..1000).map(|i| -0.1 + 0.2 * i as f64 / 999.0).collect();

@@ -11,20 +11,12 @@ struct Prepared {
     c_noise: Option<Tensor>,
 }
 
-/// Independent seeds per purpose and step from one user seed (splitmix64 finaliser).
-fn sub_seed(seed: u64, stream: u64) -> u64 {
-    let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
 /// The stream of the condition noise; step noise uses the step index as stream.
 const C_NOISE_STREAM: u64 = u64::MAX;
 
 /// Standard normal noise of the shape, dtype and device of `like`, drawn from `stream` of `seed`.
 fn noise_like(like: &Tensor, seed: u64, stream: u64) -> Result<Tensor> {
-    Diffusion::noise(like.dims(), like.dtype(), like.device(), sub_seed(seed, stream))
+    Diffusion::noise(like.dims(), like.dtype(), like.device(), pbdl_core::noise::stream_seed(seed, stream))
 }
 
 impl Diffusion {

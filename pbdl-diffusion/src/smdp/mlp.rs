@@ -12,6 +12,7 @@
 //! (which absorbs `g^2`).
 
 use crate::{Error, Result};
+use pbdl_core::train::{AdamConfig, FlatAdam};
 use rand_distr::{Distribution, StandardNormal};
 
 /// Offset added to `t` before the logarithm of the time input.
@@ -279,39 +280,10 @@ impl ScoreMlp {
     }
 }
 
-/// Adam on a flat parameter vector.
-#[derive(Clone, Debug)]
-pub struct Adam {
-    /// Learning rate.
-    pub lr: f64,
-    /// First-moment decay (0.9 in the paper).
-    pub beta1: f64,
-    /// Second-moment decay (0.99 in the paper).
-    pub beta2: f64,
-    /// Denominator offset.
-    pub eps: f64,
-    m: Vec<f64>,
-    v: Vec<f64>,
-    t: u64,
-}
-
-impl Adam {
-    /// Adam with the paper's `(0.9, 0.99)` for `n` parameters.
-    pub fn new(n: usize, lr: f64) -> Self {
-        Adam { lr, beta1: 0.9, beta2: 0.99, eps: 1e-8, m: vec![0.0; n], v: vec![0.0; n], t: 0 }
-    }
-
-    /// One update of `params` with `grad`.
-    pub fn step(&mut self, params: &mut [f64], grad: &[f64]) {
-        self.t += 1;
-        let c1 = 1.0 - self.beta1.powi(self.t.min(i32::MAX as u64) as i32);
-        let c2 = 1.0 - self.beta2.powi(self.t.min(i32::MAX as u64) as i32);
-        for i in 0..params.len() {
-            self.m[i] = self.beta1 * self.m[i] + (1.0 - self.beta1) * grad[i];
-            self.v[i] = self.beta2 * self.v[i] + (1.0 - self.beta2) * grad[i] * grad[i];
-            params[i] -= self.lr * (self.m[i] / c1) / ((self.v[i] / c2).sqrt() + self.eps);
-        }
-    }
+/// Adam with the paper's `(beta1, beta2) = (0.9, 0.99)` and `eps = 1e-8` for `n` parameters:
+/// pbdl-core's [`FlatAdam`] (candle-nn's update on a flat vector).
+pub fn paper_adam(n: usize, lr: f64) -> FlatAdam {
+    FlatAdam::new(AdamConfig { lr, beta1: 0.9, beta2: 0.99, eps: 1e-8 }, n)
 }
 
 #[cfg(test)]

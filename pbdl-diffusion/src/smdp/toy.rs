@@ -3,7 +3,7 @@
 
 use super::analytic::AffineMixture;
 use super::loss::{graded_one_step_loss, multi_step_loss, one_step_loss, LossWorkspace};
-use super::mlp::{Adam, ScoreMlp};
+use super::mlp::{paper_adam, ScoreMlp};
 use super::sampler::CoarseSteps;
 use super::sde::{chunk_rng, two_point_starts, Paths, ToySde};
 use crate::{Error, Result};
@@ -246,7 +246,7 @@ pub fn train_toy(sde: &ToySde, net: &mut ScoreMlp, cfg: &ToyTrainConfig) -> Resu
     let mut report = ToyTrainReport { simulate_seconds, ..Default::default() };
     let mut total = 0;
     for (si, stage) in cfg.stages.iter().enumerate() {
-        let mut adam = Adam::new(net.num_params(), stage.lr);
+        let mut adam = paper_adam(net.num_params(), stage.lr);
         let window = stage.loss.span();
         // The step indices this stage may start from: the loss's first one and the time range.
         let (lo_t, hi_t) = cfg.time_range;
@@ -335,7 +335,7 @@ pub fn train_toy(sde: &ToySde, net: &mut ScoreMlp, cfg: &ToyTrainConfig) -> Resu
                         Some(&mut grad),
                         &mut ws,
                     );
-                    adam.step(net.params_mut(), &grad);
+                    adam.step(net.params_mut(), &grad)?;
                     grad.fill(0.0);
                     // The reversed window: from x_{k-stride} forward to x_k with step -h.
                     let t_prev: Vec<f64> = t.iter().map(|v| (v - h).max(0.0)).collect();
@@ -356,7 +356,7 @@ pub fn train_toy(sde: &ToySde, net: &mut ScoreMlp, cfg: &ToyTrainConfig) -> Resu
             if !loss.is_finite() {
                 return Err(Error::NonFinite { what: "toy training loss".into(), step: (total + u) as u64 });
             }
-            adam.step(net.params_mut(), &grad);
+            adam.step(net.params_mut(), &grad)?;
             acc += loss;
             if (u + 1) % cfg.log_every == 0 {
                 report.losses.push((total + u + 1, acc / cfg.log_every as f64, si));

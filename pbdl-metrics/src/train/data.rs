@@ -219,44 +219,8 @@ pub fn generate(kind: Kind, count: usize, cfg: &DataConfig) -> Result<Vec<Sequen
 /// with `k = 10 f` at 128 cells), the real part of the inverse transform, scaled to zero mean and
 /// unit standard deviation per batch entry (over channels and cells).
 pub fn spectral_noise(batch: usize, channels: usize, n: usize, seed: u64) -> Result<Tensor> {
-    let dev = Device::Cpu;
     let cut2 = 0.1 * (SCRIPT_RES / 10.0) * (SCRIPT_RES / 10.0);
-    let freq = |k: usize| if k < n.div_ceil(2) { k as f64 } else { k as f64 - n as f64 };
-    let w: Vec<f64> = (0..n * n)
-        .map(|idx| {
-            let k2 = freq(idx / n).powi(2) + freq(idx % n).powi(2);
-            if k2 > cut2 {
-                1.0 / k2
-            } else {
-                0.0
-            }
-        })
-        .collect();
-    let w = Tensor::from_vec(w, (1, n, n), &dev)?;
-    let (co, si): (Vec<f64>, Vec<f64>) = (0..n * n)
-        .map(|idx| {
-            let a = 2.0 * PI * ((idx / n) * (idx % n)) as f64 / n as f64;
-            (a.cos(), a.sin())
-        })
-        .unzip();
-    let co = Tensor::from_vec(co, (n, n), &dev)?;
-    let si = Tensor::from_vec(si, (n, n), &dev)?;
-    let m = batch * channels;
-    // f32: the noise needs no more precision, and it is the main cost of the transport generators.
-    let coef = |seed: u64| -> Result<Tensor> {
-        let c = pbdl_core::seed::randn((m, n, n), 0.0, 1.0, DType::F32, &dev, seed)?;
-        Ok(c.broadcast_mul(&w.to_dtype(DType::F32)?)?)
-    };
-    let (cr, ci) = (coef(seed)?, coef(seed ^ 0x9e37_79b9_7f4a_7c15)?);
-    let (co, si) = (co.to_dtype(DType::F32)?, si.to_dtype(DType::F32)?);
-    // Re(E C E) with E = cos + i sin (symmetric): P + iQ = E C, then Re((P + iQ) E) = P cos - Q sin.
-    let p = (co.broadcast_matmul(&cr)? - si.broadcast_matmul(&ci)?)?;
-    let q = (co.broadcast_matmul(&ci)? + si.broadcast_matmul(&cr)?)?;
-    let f = (p.broadcast_matmul(&co)? - q.broadcast_matmul(&si)?)?.to_dtype(DType::F64)?;
-    let f = f.reshape((batch, channels * n * n))?;
-    let f = f.broadcast_sub(&f.mean_keepdim(1)?)?;
-    let std = f.sqr()?.mean_keepdim(1)?.sqrt()?;
-    Ok(f.broadcast_div(&std)?.reshape((batch, channels, n, n))?)
+    Ok(pbdl_core::noise::power_law_noise(batch, channels, n, cut2, seed)?)
 }
 
 /// Random parameters of the scripts' `generateParams` in 2D: `[axis][component]` matrices.

@@ -47,7 +47,7 @@ use crate::bptt::GradientMode;
 use crate::error::{check_len, Error, Result};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
-use pbdl_core::train::{AdamConfig, ClipConfig};
+use pbdl_core::train::{clip_in_place, AdamConfig, ClipConfig, FlatAdam};
 use std::time::Instant;
 
 /// Offsets of the six parameter blocks in a flat vector, in the order of
@@ -639,76 +639,6 @@ fn check_clip(clip: &ClipConfig) -> Result<()> {
     }
 }
 
-/// The global L2 norm, robust to overflow of the squares (as [`pbdl_core::train::grad_norm`]).
-pub fn global_norm(g: &[f64]) -> f64 {
-    let sum_sq: f64 = g.iter().map(|v| v * v).sum();
-    if !sum_sq.is_infinite() {
-        return sum_sq.sqrt();
-    }
-    let max_abs = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    if max_abs.is_infinite() {
-        return max_abs;
-    }
-    max_abs * g.iter().map(|v| (v / max_abs) * (v / max_abs)).sum::<f64>().sqrt()
-}
-
-/// Clips `g` as [`ClipConfig::apply`] does and returns the norm before clipping.
-pub fn clip_in_place(g: &mut [f64], clip: &ClipConfig) -> f64 {
-    let norm = global_norm(g);
-    match *clip {
-        ClipConfig::None => {}
-        ClipConfig::Value { max_value } => {
-            for v in g.iter_mut() {
-                *v = v.clamp(-max_value, max_value);
-            }
-        }
-        ClipConfig::Norm { max_norm } => {
-            if norm.is_finite() && norm > max_norm {
-                let scale = max_norm / norm;
-                for v in g.iter_mut() {
-                    *v *= scale;
-                }
-            }
-        }
-    }
-    norm
-}
-
-/// Adam on a flat vector with candle-nn's update (the one behind
-/// [`pbdl_core::train::OptimizerConfig::Adam`]), operation for operation.
-#[derive(Clone, Debug)]
-pub struct FastAdam {
-    cfg: AdamConfig,
-    m: Vec<f64>,
-    v: Vec<f64>,
-    t: i32,
-}
-
-impl FastAdam {
-    /// Zero moments for `n` parameters.
-    pub fn new(cfg: AdamConfig, n: usize) -> Self {
-        Self { cfg, m: vec![0.0; n], v: vec![0.0; n], t: 0 }
-    }
-
-    /// One update of `theta` with gradient `g`.
-    pub fn step(&mut self, theta: &mut [f64], g: &[f64]) -> Result<()> {
-        check_len("Adam gradient length", theta.len(), g.len())?;
-        check_len("Adam parameter length", self.m.len(), theta.len())?;
-        self.t += 1;
-        let (b1, b2, lr, eps) = (self.cfg.beta1, self.cfg.beta2, self.cfg.lr, self.cfg.eps);
-        let scale_m = 1.0 / (1.0 - b1.powi(self.t));
-        let scale_v = 1.0 / (1.0 - b2.powi(self.t));
-        for (((th, m), v), gi) in theta.iter_mut().zip(&mut self.m).zip(&mut self.v).zip(g) {
-            *m = *m * b1 + gi * (1.0 - b1);
-            *v = *v * b2 + gi * gi * (1.0 - b2);
-            let (m_hat, v_hat) = (*m * scale_m, *v * scale_v);
-            // candle-nn multiplies theta by (1 - lr * weight_decay) = 1 first: exact, skipped.
-            *th -= m_hat / (v_hat.sqrt() + eps) * lr;
-        }
-        Ok(())
-    }
-}
-
 /// Test loss `1 - mean cos th` of `net` on the episodes `states [n, d]` (forward only).
 pub fn evaluate(phys: &CartPole, net: &FastController, states: &[f64]) -> Result<f64> {
     let (l, d) = (net.layout, phys.state_dim());
@@ -751,7 +681,7 @@ pub fn train_with(cfg: &CartPoleConfig, on_eval: &mut dyn FnMut(usize, f64)) -> 
     let mut net = FastController::with_zero_last_layer(phys.state_dim(), cfg.width, cfg.seed)?;
     let train = phys.initial_states(cfg.train, cfg.seed)?.flatten_all()?.to_vec1::<f64>()?;
     let test = phys.initial_states(cfg.test, cfg.seed + 1)?.flatten_all()?.to_vec1::<f64>()?;
-    let mut opt = FastAdam::new(AdamConfig { lr: cfg.lr, ..Default::default() }, net.params.len());
+    let mut opt = FlatAdam::new(AdamConfig { lr: cfg.lr, ..Default::default() }, net.params.len());
     let mut bptt = FastBptt::new(&phys, cfg.width, cfg.batch);
     let d = phys.state_dim();
     let mut run = CartPoleRun::default();

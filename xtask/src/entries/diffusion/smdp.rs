@@ -15,7 +15,7 @@ use pbdl_diffusion::smdp::analytic::QUADRATIC_POSTERIOR_DT002;
 use pbdl_diffusion::smdp::experts::SplitExpertRecipe;
 use pbdl_diffusion::smdp::heat::{heat_step, HeatProblem};
 use pbdl_diffusion::smdp::loss::{graded_one_step_loss, multi_step_loss, one_step_loss, LossWorkspace};
-use pbdl_diffusion::smdp::mlp::{Adam, ScoreMlp};
+use pbdl_diffusion::smdp::mlp::{paper_adam, ScoreMlp};
 use pbdl_diffusion::smdp::sampler::{
     hit_rates_with, posterior_plus_with, sample_trajectories, sample_trajectories_with, trajectory_times, Sampler,
 };
@@ -195,11 +195,11 @@ fn bench_smdp(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     let mut ws = LossWorkspace::default();
     let mut grad = vec![0.0; net.num_params()];
     let mut work = net.clone();
-    let mut adam = Adam::new(net.num_params(), 1e-4);
+    let mut adam = paper_adam(net.num_params(), 1e-4);
     let sec = median_seconds(3, reps * 10, || {
         grad.fill(0.0);
         let l = one_step_loss(&work, &sde.drift, sde.dt, &x, &t, &prev, Some(&mut grad), &mut ws);
-        adam.step(work.params_mut(), &grad);
+        adam.step(work.params_mut(), &grad).expect("the net's parameter and gradient lengths");
         l
     });
     rows.push(bench_row("smdp_toy_one_step_update", "mlp_2536_batch256", sec, "update", 1));
@@ -210,7 +210,7 @@ fn bench_smdp(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         let sec = median_seconds(1, reps, || {
             grad.fill(0.0);
             let l = multi_step_loss(&work, &sde.drift, sde.dt, &x, &tw, &targets, false, Some(&mut grad), &mut ws);
-            adam.step(work.params_mut(), &grad);
+            adam.step(work.params_mut(), &grad).expect("the net's parameter and gradient lengths");
             l
         });
         rows.push(bench_row("smdp_toy_multi_step_update", &format!("window{window}_batch256"), sec, "update", 1));
@@ -224,7 +224,7 @@ fn bench_smdp(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     let sec = median_seconds(3, reps * 10, || {
         grad.fill(0.0);
         let l = graded_one_step_loss(&work, &sde.drift, &h, &w, &x, &t, &prev, Some(&mut grad), &mut ws);
-        adam.step(work.params_mut(), &grad);
+        adam.step(work.params_mut(), &grad).expect("the net's parameter and gradient lengths");
         l
     });
     rows.push(bench_row("smdp_toy_graded_update_odd_mlp", "mlp_2536_batch256", sec, "update", 1));

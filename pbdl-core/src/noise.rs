@@ -1,0 +1,118 @@
+//! Seeded noise for initial conditions, data generation and samplers: independent streams from
+//! one seed, and smooth periodic random fields.
+//!
+//! | function | what it gives |
+//! |---|---|
+//! | [`stream_seed`] | the seed of stream `k` of a run seed (SplitMix64 finaliser): sampler steps, batch chunks and data items that must not share random numbers |
+//! | [`power_law_noise`] | a periodic random field with Fourier amplitudes `1 / k^2` above a cut (PhiFlow's `Noise(smoothness=1)`), zero mean and unit variance per batch entry |
+//!
+//! Plain Gaussian and uniform tensors are [`crate::seed::randn`] and [`crate::seed::rand_uniform`].
+//!
+//! ```
+//! use pbdl_core::noise::{power_law_noise, stream_seed};
+//!
+//! assert_ne!(stream_seed(7, 0), stream_seed(7, 1));
+//! let f = power_law_noise(2, 1, 32, 16.0, stream_seed(7, 3))?;
+//! assert_eq!(f.dims(), &[2, 1, 32, 32]);
+//! let var = f.sqr()?.mean_all()?.to_scalar::<f64>()?;
+//! assert!((var - 1.0).abs() < 1e-9);
+//! # Ok::<(), pbdl_core::Error>(())
+//! ```
+
+use crate::Result;
+use candle_core::{DType, Device, Tensor};
+use std::f64::consts::PI;
+
+/// The seed of stream `stream` of `seed`: a SplitMix64 finaliser of `seed ^ stream * golden`, so
+/// neighbouring streams give unrelated generators.
+pub fn stream_seed(seed: u64, stream: u64) -> u64 {
+    let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// A periodic random field `[batch, channels, n, n]` (f64): complex Gaussian Fourier
+/// coefficients with amplitude `1 / kappa^2` (`kappa` in periods per domain) where
+/// `kappa^2 > min_kappa2` and zero below (a high-pass cut), the real part of the inverse
+/// transform, scaled to zero mean and unit standard deviation per batch entry (over channels
+/// and cells). The coefficients are drawn in f32.
+pub fn power_law_noise(batch: usize, channels: usize, n: usize, min_kappa2: f64, seed: u64) -> Result<Tensor> {
+    let dev = Device::Cpu;
+    let freq = |k: usize| if k < n.div_ceil(2) { k as f64 } else { k as f64 - n as f64 };
+    let w: Vec<f64> = (0..n * n)
+        .map(|idx| {
+            let k2 = freq(idx / n).powi(2) + freq(idx % n).powi(2);
+            if k2 > min_kappa2 {
+                1.0 / k2
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let w = Tensor::from_vec(w, (1, n, n), &dev)?;
+    let (co, si): (Vec<f64>, Vec<f64>) = (0..n * n)
+        .map(|idx| {
+            let a = 2.0 * PI * ((idx / n) * (idx % n)) as f64 / n as f64;
+            (a.cos(), a.sin())
+        })
+        .unzip();
+    let co = Tensor::from_vec(co, (n, n), &dev)?;
+    let si = Tensor::from_vec(si, (n, n), &dev)?;
+    let m = batch * channels;
+    // f32: the noise needs no more precision, and it dominates the cost of data generators.
+    let coef = |seed: u64| -> Result<Tensor> {
+        let c = crate::seed::randn((m, n, n), 0.0, 1.0, DType::F32, &dev, seed)?;
+        Ok(c.broadcast_mul(&w.to_dtype(DType::F32)?)?)
+    };
+    let (cr, ci) = (coef(seed)?, coef(seed ^ 0x9e37_79b9_7f4a_7c15)?);
+    let (co, si) = (co.to_dtype(DType::F32)?, si.to_dtype(DType::F32)?);
+    // Re(E C E) with E = cos + i sin (symmetric): P + iQ = E C, then Re((P + iQ) E) = P cos - Q sin.
+    let p = (co.broadcast_matmul(&cr)? - si.broadcast_matmul(&ci)?)?;
+    let q = (co.broadcast_matmul(&ci)? + si.broadcast_matmul(&cr)?)?;
+    let f = (p.broadcast_matmul(&co)? - q.broadcast_matmul(&si)?)?.to_dtype(DType::F64)?;
+    let f = f.reshape((batch, channels * n * n))?;
+    let f = f.broadcast_sub(&f.mean_keepdim(1)?)?;
+    let std = f.sqr()?.mean_keepdim(1)?.sqrt()?;
+    Ok(f.broadcast_div(&std)?.reshape((batch, channels, n, n))?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn power_law_noise_has_no_power_below_the_cut_and_decays_as_k_to_the_minus_2() {
+        // The field's own Fourier amplitudes: zero where kappa^2 <= cut, and the mean power
+        // ratio between two shells follows |1/k^2|^2 = k^-4.
+        let n = 32;
+        let f = power_law_noise(4, 1, n, 4.5, 11).unwrap();
+        let v: Vec<f64> = f.flatten_all().unwrap().to_vec1().unwrap();
+        let power = |kx: usize, ky: usize| -> f64 {
+            let mut s = 0.0;
+            for b in 0..4 {
+                let (mut re, mut im) = (0.0, 0.0);
+                for y in 0..n {
+                    for x in 0..n {
+                        let a = -2.0 * PI * ((kx * x + ky * y) as f64) / n as f64;
+                        let val = v[b * n * n + y * n + x];
+                        re += val * a.cos();
+                        im += val * a.sin();
+                    }
+                }
+                s += re * re + im * im;
+            }
+            s
+        };
+        let total: f64 = v.iter().map(|x| x * x).sum::<f64>() * (n * n) as f64;
+        // f32 coefficients: round-off leaves ~1e-14 of the power there; a mode above the cut
+        // carries ~1e-3.
+        let (p11, p20) = (power(1, 1) / total, power(2, 0) / total);
+        assert!(p11 < 1e-10 && p20 < 1e-10, "below the cut: {p11:e} {p20:e}");
+        // Shells at kappa^2 = 9 and 36: expected power ratio (36/9)^2 = 16 on average.
+        let p3: f64 = [(3, 0), (0, 3)].iter().map(|&(a, b)| power(a, b)).sum();
+        let p6: f64 = [(6, 0), (0, 6)].iter().map(|&(a, b)| power(a, b)).sum();
+        let ratio = p3 / p6;
+        assert!((2.0..130.0).contains(&ratio), "power ratio {ratio} should scatter around 16");
+    }
+}
