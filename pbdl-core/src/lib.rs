@@ -13,6 +13,7 @@
 //! | [`seed`] | seeded random tensors: same seed, same numbers |
 //! | [`conv`] | fast differentiable conv1d/2d/3d (im2col + gemm): stride, dilation, groups, zero or circular padding; layers |
 //! | [`nn`] | layer/group/RMS norm, softmax and activations that train (candle's fused ones have no backward) |
+//! | [`tolerance`] | named test tolerances with their reasons ([`tolerance::GRAD_CHECK_F64`], f32/f64 agreement) |
 //! | [`train`] | optimisers (Adam/AdamW/SGD+momentum) from serde configs, lr schedules, gradient clipping, CSV/JSON scalar logs, progress bar, divergence guard |
 //! | [`sample`] | differentiable bilinear/trilinear sampling at points and warping (clamped or periodic), resize (nearest, bilinear, bicubic) |
 //! | [`stepper`] | the simulator seams: [`stepper::Stepper`] (state in, state out, operators listed, differentiable where it is) and [`stepper::Evolve`] (in place, adaptive step, `run_until`) |
@@ -41,6 +42,7 @@ pub mod sample;
 pub mod seed;
 pub mod stepper;
 pub mod threads;
+pub mod tolerance;
 pub mod train;
 #[cfg(feature = "viz")]
 pub mod viz;

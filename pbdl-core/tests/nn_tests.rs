@@ -8,8 +8,8 @@ use pbdl_core::nn::{
 };
 use pbdl_core::{assert_varmap_has_grads, check_grad, seed, Error, GradCheckOptions};
 
-/// Tolerance on the relative (max-norm) error of analytic vs finite-difference gradients.
-const GRAD_TOL: f64 = 1e-6;
+// Tolerance on the relative (max-norm) error of analytic vs finite-difference gradients.
+use pbdl_core::tolerance::GRAD_CHECK_F64 as GRAD_TOL;
 
 fn randn(shape: &[usize], mean: f64, std: f64, s: u64) -> Tensor {
     seed::randn(shape, mean, std, DType::F64, &Device::Cpu, s).unwrap()

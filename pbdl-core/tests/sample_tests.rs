@@ -7,8 +7,8 @@ use pbdl_core::sample::{grid_sample, index_grid, resize2d, resize3d, warp, Bound
 use pbdl_core::{check_grad, Error, GradCheckOptions};
 use std::f64::consts::PI;
 
-/// Tolerance of the finite-difference checks (f64, central differences, eps = 1e-6).
-const GRAD_TOL: f64 = 1e-6;
+// Tolerance of the finite-difference checks (f64, central differences, eps = 1e-6).
+use pbdl_core::tolerance::GRAD_CHECK_F64 as GRAD_TOL;
 
 fn cpu() -> Device {
     Device::Cpu

@@ -7,7 +7,8 @@ use pbdl_core::{check_grad, seed, GradCheckOptions};
 use pbdl_grid::advect::{mac_cormack, semi_lagrangian};
 use pbdl_grid::{Bc, Boundaries, CenteredField, Grid, MacField, ScalarBc, ScalarBoundaries};
 
-const TOL: f64 = 1e-6;
+// Finite-difference gradient checks in f64 (see the constant for why 1e-6).
+use pbdl_core::tolerance::GRAD_CHECK_F64 as TOL;
 
 fn opts() -> GradCheckOptions {
     GradCheckOptions { max_probes: 64, ..Default::default() }

@@ -4,12 +4,7 @@
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::seed;
 
-/// f32 agreement (with candle, or of two kernel paths): max |a - b| relative to max |b|.
-pub const F32_TOL: f64 = 1e-5;
-/// Finite-difference gradient checks in f64.
-pub const GRAD_TOL: f64 = 1e-6;
-/// f64 agreement (with a direct loop, or of two kernel paths).
-pub const F64_TOL: f64 = 1e-12;
+pub use pbdl_core::tolerance::{F32_AGREEMENT as F32_TOL, F64_AGREEMENT as F64_TOL, GRAD_CHECK_F64 as GRAD_TOL};
 
 /// Standard-normal samples of `shape`, seeded.
 pub fn randn(shape: &[usize], dtype: DType, seed: u64) -> Tensor {
