@@ -66,6 +66,13 @@ pub struct CheckpointMeta {
     pub config: serde_json::Value,
 }
 
+impl CheckpointMeta {
+    /// Metadata that records only the step.
+    pub fn at(step: u64) -> Self {
+        Self { step, ..Default::default() }
+    }
+}
+
 /// Name, dtype and shape of one stored tensor.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct TensorEntry {
