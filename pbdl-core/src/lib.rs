@@ -5,6 +5,7 @@
 //!
 //! | module | what it gives you |
 //! |---|---|
+//! | [`data`] | sequence datasets: [`data::SequenceSource`] (in memory or streamed from `.npz` shards), seeded splits, random training windows, generate-once caching |
 //! | [`error`] | the crate's [`Error`] enum and shape/dtype/finiteness checks |
 //! | [`real`] | the [`Real`] float trait (`f32`, `f64`) that kernels are generic over |
 //! | [`noise`] | seeded noise: independent streams of one seed ([`noise::stream_seed`]), smooth periodic power-law fields ([`noise::power_law_noise`]) |
@@ -28,6 +29,7 @@
 #![warn(missing_docs)]
 
 pub mod conv;
+pub mod data;
 pub mod error;
 pub mod grad_check;
 pub mod io;

@@ -166,13 +166,24 @@ mod tests {
     fn quadratic_run(dir: &std::path::Path, steps: u64, fail_at: Option<u64>) -> Result<(LoopReport, f64)> {
         let varmap = VarMap::new();
         let w = varmap.get(2, "w", Init::Const(0.5), DType::F64, &Device::Cpu)?;
-        let cfg = LoopConfig { steps, checkpoint_every: 5, dir: Some(dir.to_path_buf()), progress: false, ..Default::default() };
+        let cfg = LoopConfig {
+            steps,
+            checkpoint_every: 5,
+            dir: Some(dir.to_path_buf()),
+            progress: false,
+            ..Default::default()
+        };
         let run = TrainLoop::resume(&varmap, cfg)?;
         let adam = OptimizerConfig::Adam(AdamConfig { lr: 0.05, ..Default::default() });
-        let report = run.run::<crate::Error>(&adam, |_| 0.05, CheckpointMeta::at, |step| {
-            let l = (&w - 2.0)?.sqr()?.sum_all()?;
-            Ok(if Some(step) == fail_at { (l * f64::NAN)? } else { l })
-        })?;
+        let report = run.run::<crate::Error>(
+            &adam,
+            |_| 0.05,
+            CheckpointMeta::at,
+            |step| {
+                let l = (&w - 2.0)?.sqr()?.sum_all()?;
+                Ok(if Some(step) == fail_at { (l * f64::NAN)? } else { l })
+            },
+        )?;
         let w0 = w.flatten_all()?.to_vec1::<f64>()?[0];
         Ok((report, w0))
     }
