@@ -1,5 +1,5 @@
 //! Runs the dam break and prints the surge front Z = z/a at T = 1.0 .. 2.5 (env: DX, ALPHA, DELTA, HDX, KERNEL).
-use pbdl_particles::{DamBreak, WcsphParams};
+use pbdl_particles::{DamBreak, Evolve, WcsphParams};
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let env = |k: &str, d: f64| std::env::var(k).ok().and_then(|v| v.parse().ok()).unwrap_or(d);
     // Defaults: the scene and parameters of the dam-break test.

@@ -1,7 +1,7 @@
 //! Sod's shock tube with 1D SPH: L1 errors against the exact solution at t = 0.2.
 //!
 //! `cargo run -p pbdl-particles --example sod -- 450`
-use pbdl_particles::{ShockTube, Sph1dParams};
+use pbdl_particles::{Evolve, ShockTube, Sph1dParams};
 
 fn main() -> Result<(), pbdl_particles::Error> {
     let n: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(225);

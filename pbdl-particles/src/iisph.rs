@@ -31,7 +31,8 @@
 //! `s_i = min(1, dt/dt_stable) (ρ0 - ρ_i) - dt Σ_j m_j v*_ij·∇W_ij`, which is Ihmsen's `ρ0 - ρ*_i`
 //! for a stable step. Within a much shorter step it would need velocities of order
 //! `(ρ0 - ρ_i)/ρ0 dx/dt`; for the same reason the warm start of the next step is scaled by
-//! that ratio too, and [`Iisph::run_until`] splits the time left into equal steps.
+//! that ratio too, and [`Evolve::run_until`] splits the time left into equal steps (see the
+//! [`Evolve`] impl of [`Iisph`]).
 //!
 //! The solver stops when the average density error of the predicted state,
 //! `mean_i e_i / ρ0` with `e_i = |ρ*_i + (Ap)_i - ρ0|` where `p_i > 0` and
@@ -115,6 +116,7 @@ use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
 use crate::wcsph::DamBreak;
+use pbdl_core::stepper::{equal_steps_dt, Evolve};
 use pbdl_core::Real;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -635,20 +637,6 @@ impl<T: Real> Iisph<T> {
         Ok(())
     }
 
-    /// Steps until `t_end` in equal steps no longer than the stable `dt` (re-evaluated each
-    /// step), so that no sliver step is left at the end; returns the steps taken.
-    pub fn run_until(&mut self, t_end: f64) -> Result<u64> {
-        let start = self.steps;
-        while self.time < t_end * (1.0 - 1e-14) {
-            let (rest, stable) = (t_end - self.time, self.stable_dt());
-            // Equal steps over the rest: no sliver step at the end (see `step`; a rounding
-            // remainder may still give one, which `step` handles).
-            let n = (rest / stable * (1.0 - 1e-9)).ceil().max(1.0);
-            self.step((rest / n).min(stable))?;
-        }
-        Ok(self.steps - start)
-    }
-
     /// How often (particle and axis) a fluid centre crossed the container surface and was put
     /// back onto it by the impermeability condition, over all steps (0 when there are no walls).
     pub fn wall_corrections(&self) -> u64 {
@@ -743,5 +731,33 @@ impl DamBreak {
         )?;
         sim.set_initial_pressure(p0)?;
         Ok(sim)
+    }
+}
+
+/// Adaptive stepping in equal steps: [`Evolve::run_until`] splits the time left into equal steps
+/// no longer than the stable `dt` ([`Iisph::stable_dt`], re-evaluated each step) with
+/// [`equal_steps_dt`], so that no sliver step is left at the end (see [`Iisph::step`]; a
+/// rounding remainder may still give one, which `step` handles).
+impl<T: Real> Evolve for Iisph<T> {
+    type Error = Error;
+
+    fn time(&self) -> f64 {
+        self.time
+    }
+
+    fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    fn stable_dt(&self) -> f64 {
+        Iisph::stable_dt(self)
+    }
+
+    fn step(&mut self, dt: f64) -> Result<()> {
+        Iisph::step(self, dt)
+    }
+
+    fn next_dt(&self, t_end: f64) -> f64 {
+        equal_steps_dt(self.time, t_end, Iisph::stable_dt(self))
     }
 }

@@ -13,12 +13,25 @@
 //! | [`iisph`] | [`Iisph`]: 2D implicit incompressible SPH (relaxed-Jacobi pressure solve to a stated density tolerance, wall particles), [`DamBreak::build_iisph`] / [`DamBreak::build_iisph_as`] |
 //! | [`render`] | particles splatted into pixel fields for PNG/GIF ([`render::scatter`]) |
 //! | [`scene`] | [`scene::Scene`]: TOML scenes (`precision = "f32"` or `"f64"`) (shock tube, dam break WCSPH/IISPH, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
+//! | [`Evolve`] | the one solver trait (re-exported from [`pbdl_core::stepper`]): [`Sph1d`], [`Wcsph`], [`Iisph`] and [`scene::Stepper`] step in place with an adaptive stable step; [`Evolve::run_until`] (IISPH in equal steps, the others with a shortened last step) |
 //! | [`validation`] | [`validation::martin_moyce_1952`]: the measured dam-break surge front (embedded) |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
 //! Conventions: positions are slices of `[T; D]` (`T` = `f32` or `f64`); every solver is generic
 //! over `T` with `f64` as the default type (parameters, time and step sizes stay `f64`; sums such
 //! as momentum and mass are accumulated in `f64`); neighbour lists exclude the particle itself.
+//!
+//! Every solver advances through [`Evolve`]; bring it into scope to call `run_until`:
+//!
+//! ```
+//! use pbdl_particles::{Evolve, ShockTube, Sph1dParams};
+//!
+//! let mut sim = ShockTube::sod().build(100, Sph1dParams::default())?;
+//! let steps = sim.run_until(0.01)?;
+//! assert!(steps > 0 && (sim.time() - 0.01).abs() < 1e-12);
+//! assert_eq!(sim.run_until(0.01)?, 0); // already there
+//! # Ok::<(), pbdl_particles::Error>(())
+//! ```
 #![warn(missing_docs)]
 
 pub mod error;
@@ -36,6 +49,7 @@ pub use error::{Error, Result};
 pub use iisph::{Iisph, IisphParams};
 pub use kernels::{Kernel, KernelKind};
 pub use neighbors::{CellList, Domain, NeighborList};
+pub use pbdl_core::stepper::Evolve;
 pub use riemann::GasState;
 pub use sph1d::{ShockTube, Sph1d, Sph1dParams};
 pub use wcsph::{DamBreak, Wcsph, WcsphParams};

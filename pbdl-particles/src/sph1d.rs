@@ -26,6 +26,7 @@ use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
 use crate::riemann::{self, GasState, RiemannSolution};
+use pbdl_core::stepper::Evolve;
 use pbdl_core::Real;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -572,16 +573,6 @@ impl<T: Real> Sph1d<T> {
         Ok(())
     }
 
-    /// Steps with the adaptive stable `dt` until `t_end` (the last step lands on it).
-    pub fn run_until(&mut self, t_end: f64) -> Result<u64> {
-        let start = self.steps;
-        while self.time < t_end * (1.0 - 1e-14) {
-            let dt = self.stable_dt().min(t_end - self.time);
-            self.step(dt)?;
-        }
-        Ok(self.steps - start)
-    }
-
     /// L1 errors over mobile particles with `|x - x0| < half_width` against `reference(x)`
     /// (accumulated in `f64`).
     pub fn l1_errors(&self, x0: f64, half_width: f64, reference: impl Fn(f64) -> GasState) -> L1Errors {
@@ -598,5 +589,27 @@ impl<T: Real> Sph1d<T> {
         }
         let c = e.count.max(1) as f64;
         L1Errors { rho: e.rho / c, u: e.u / c, p: e.p / c, count: e.count }
+    }
+}
+
+/// Adaptive stepping: [`Evolve::run_until`] takes the stable step ([`Sph1d::stable_dt`]) and
+/// shortens only the last one so that it lands on `t_end`.
+impl<T: Real> Evolve for Sph1d<T> {
+    type Error = Error;
+
+    fn time(&self) -> f64 {
+        self.time
+    }
+
+    fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    fn stable_dt(&self) -> f64 {
+        Sph1d::stable_dt(self)
+    }
+
+    fn step(&mut self, dt: f64) -> Result<()> {
+        Sph1d::step(self, dt)
     }
 }

@@ -20,6 +20,7 @@
 use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
+use pbdl_core::stepper::Evolve;
 use pbdl_core::Real;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -548,16 +549,6 @@ impl<T: Real> Wcsph<T> {
         Ok(())
     }
 
-    /// Steps with the adaptive stable `dt` until `t_end`.
-    pub fn run_until(&mut self, t_end: f64) -> Result<u64> {
-        let start = self.steps;
-        while self.time < t_end * (1.0 - 1e-14) {
-            let dt = self.stable_dt().0.min(t_end - self.time);
-            self.step(dt)?;
-        }
-        Ok(self.steps - start)
-    }
-
     /// The largest x of any fluid particle (the surge front).
     pub fn front(&self) -> f64 {
         self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(p[0].wide()))
@@ -583,5 +574,28 @@ impl<T: Real> Wcsph<T> {
     pub fn mean_density_error(&self) -> f64 {
         self.rho[..self.n_fluid].iter().map(|r| (r.wide() / self.phys.rho0 - 1.0).abs()).sum::<f64>()
             / self.n_fluid as f64
+    }
+}
+
+/// Adaptive stepping: [`Evolve::run_until`] takes the stable step (the value of
+/// [`Wcsph::stable_dt`], without its criterion) and shortens only the last one so that it
+/// lands on `t_end`.
+impl<T: Real> Evolve for Wcsph<T> {
+    type Error = Error;
+
+    fn time(&self) -> f64 {
+        self.time
+    }
+
+    fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    fn stable_dt(&self) -> f64 {
+        Wcsph::stable_dt(self).0
+    }
+
+    fn step(&mut self, dt: f64) -> Result<()> {
+        Wcsph::step(self, dt)
     }
 }

@@ -5,7 +5,7 @@
 
 use pbdl_core::Real;
 use pbdl_particles::validation::martin_moyce_1952;
-use pbdl_particles::{DamBreak, WcsphParams};
+use pbdl_particles::{DamBreak, Evolve, WcsphParams};
 
 /// Runs the default dam break in precision `T` through the measured times in [1, 2.5] and
 /// returns (T, Z simulated, Z measured); asserts no leak and a finite state on the way.

@@ -1,6 +1,6 @@
 //! The incompressible (IISPH) dam break: density error, solver errors, bad input.
 
-use pbdl_particles::{DamBreak, Error, IisphParams, Kernel, KernelKind};
+use pbdl_particles::{DamBreak, Error, Evolve, IisphParams, Kernel, KernelKind};
 
 /// Kinetic and potential energy of the fluid (per metre of depth).
 fn energies(sim: &pbdl_particles::Iisph, g: f64) -> (f64, f64) {

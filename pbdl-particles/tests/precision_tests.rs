@@ -6,7 +6,7 @@
 use pbdl_core::Real;
 use pbdl_particles::neighbors::Domain;
 use pbdl_particles::sph1d::L1Errors;
-use pbdl_particles::{DamBreak, Iisph, IisphParams, ShockTube, Sph1d, Sph1dParams};
+use pbdl_particles::{DamBreak, Evolve, Iisph, IisphParams, ShockTube, Sph1d, Sph1dParams};
 use std::time::Instant;
 
 /// Sod at `t = 0.2` with `n` particles in precision `T`: L1 errors over `|x| < 0.4` against the

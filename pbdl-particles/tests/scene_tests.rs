@@ -2,7 +2,7 @@
 //! typed errors naming the field, trajectories round-trip through `.npz`.
 
 use pbdl_particles::scene::{self, InitState, Precision, Scene, Stepper};
-use pbdl_particles::Error;
+use pbdl_particles::{Error, Evolve};
 
 fn field_of(r: pbdl_particles::Result<Stepper>) -> String {
     match r {
@@ -276,4 +276,34 @@ fn f32_trajectory_round_trips_exactly() {
     assert_eq!(flat(&restart.x), last.positions);
     assert_eq!(flat(&restart.v), last.velocities);
     assert_eq!(restart.rho.iter().map(|&r| r as f64).collect::<Vec<_>>(), last.density);
+}
+
+/// The scene's `Stepper` steps through `Evolve` exactly as the solver it holds: IISPH in equal
+/// steps with no sliver at the end, the others with the stable step and a shortened last one.
+#[test]
+fn stepper_evolves_like_the_solver_it_holds() {
+    for name in ["dam_break_iisph", "shock_tube"] {
+        let scene = Scene::builtin(name).unwrap();
+        let t_end = 0.3 * scene.frame_dt;
+        let mut via_enum = scene.build(0, None).unwrap();
+        let steps = via_enum.run_until(t_end).unwrap();
+        assert!(steps > 0 && (via_enum.time() - t_end).abs() < 1e-15, "{name}: t = {}", via_enum.time());
+        assert_eq!(via_enum.steps(), steps);
+        let mut direct = scene.build(0, None).unwrap();
+        let frame = match &mut direct {
+            Stepper::Iisph(s) => {
+                // Equal steps over the time left (no sliver step at the end).
+                assert_eq!(s.next_dt(t_end), pbdl_core::stepper::equal_steps_dt(0.0, t_end, s.stable_dt()));
+                assert_eq!(s.run_until(t_end).unwrap(), steps);
+                direct.frame().unwrap()
+            }
+            Stepper::Sph1d(s) => {
+                assert_eq!(s.next_dt(t_end), s.stable_dt().min(t_end));
+                assert_eq!(s.run_until(t_end).unwrap(), steps);
+                direct.frame().unwrap()
+            }
+            Stepper::Wcsph(_) => unreachable!(),
+        };
+        assert_eq!(frame, via_enum.frame().unwrap(), "{name}: bit-identical states");
+    }
 }

@@ -2,7 +2,7 @@
 //! periodic box.
 
 use pbdl_particles::neighbors::Domain;
-use pbdl_particles::{ShockTube, Sph1d, Sph1dParams};
+use pbdl_particles::{Evolve, ShockTube, Sph1d, Sph1dParams};
 
 fn sod_l1(n: usize) -> pbdl_particles::sph1d::L1Errors {
     let tube = ShockTube::sod();

@@ -550,16 +550,8 @@ pub fn load_sequences(path: impl AsRef<Path>) -> Result<Vec<Sequence>> {
         .collect()
 }
 
-/// Loads `path` if it exists, otherwise generates with `make` and writes it there (a cache).
+/// Loads `path` if it holds readable sequences, otherwise generates with `make` and writes it
+/// there atomically (a cache; see [`pbdl_core::data::cached`]).
 pub fn cached(path: impl AsRef<Path>, make: impl FnOnce() -> Result<Vec<Sequence>>) -> Result<Vec<Sequence>> {
-    let path = path.as_ref();
-    if path.exists() {
-        return load_sequences(path);
-    }
-    let seqs = make()?;
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.to_path_buf(), source })?;
-    }
-    save_sequences(path, &seqs)?;
-    Ok(seqs)
+    pbdl_core::data::cached(path, |p: &Path| load_sequences(p), make, |p: &Path, seqs: &Vec<Sequence>| save_sequences(p, seqs))
 }

@@ -16,7 +16,7 @@ use pbdl_core::viz::{self, ColorRange, FieldStyle, GifStyle, PlotStyle, Series};
 use pbdl_particles::neighbors::{CellList, Domain, NeighborList};
 use pbdl_particles::render;
 use pbdl_particles::validation::martin_moyce_1952;
-use pbdl_particles::{DamBreak, IisphParams, ShockTube, Sph1dParams, WcsphParams};
+use pbdl_particles::{DamBreak, Evolve, IisphParams, ShockTube, Sph1dParams, WcsphParams};
 use std::time::Instant;
 
 /// The entries of `pbdl-particles`.

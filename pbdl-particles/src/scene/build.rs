@@ -1,0 +1,320 @@
+//! Building a scene: [`Scene::build`] / [`Scene::build_as`] and one builder per section.
+
+use super::noise::{perlin1, perlin2};
+use super::{scene_err, DamBreakScene, DamSolver, InitState, Periodic1dScene, Periodic2dScene, Scene, Stepper};
+use crate::error::{Error, Result};
+use crate::iisph::Iisph;
+use crate::neighbors::Domain;
+use crate::sph1d::Sph1d;
+use crate::wcsph::{Wcsph, WcsphPhysics};
+use pbdl_core::Real;
+
+impl Scene {
+    /// Builds the `f64` stepper for run `seed` (added to the scene's seed), optionally from
+    /// initial particles (`--init`). This ignores [`Scene::precision`]: to honour it, match on
+    /// it and call [`Scene::build_as`] with `f32` or `f64`.
+    ///
+    /// Errors: [`Error::SceneField`] naming the field for bad values,
+    /// [`Error::OutsideDomain`] for initial particles outside the box.
+    pub fn build(&self, seed: u64, init: Option<&InitState>) -> Result<Stepper> {
+        self.build_as::<f64>(seed, init)
+    }
+
+    /// Builds the stepper in precision `T` (`f32` or `f64`); as [`Scene::build`] otherwise.
+    /// Initial states (noise, layouts, `--init` arrays) are computed in `f64` and rounded once,
+    /// so `f32` values read back from an `f32` trajectory are restored exactly.
+    ///
+    /// Errors: as [`Scene::build`].
+    pub fn build_as<T: Real>(&self, seed: u64, init: Option<&InitState>) -> Result<Stepper<T>> {
+        self.validate()?;
+        let name = self.name.as_str();
+        let seed = self.seed.wrapping_add(seed);
+        if let Some(st) = &self.shock_tube {
+            if init.is_some() {
+                return Err(scene_err(name, "init", "--init is not supported for shock tubes (use periodic_1d)"));
+            }
+            let sim = st.tube().build_as::<T>(st.n, st.sph).map_err(|e| match e {
+                Error::Invalid { field, reason } if ["eta", "alpha", "cfl", "kernel"].contains(&field) => {
+                    scene_err(name, &format!("shock_tube.sph.{field}"), reason)
+                }
+                e => field_err(name, "shock_tube", e),
+            })?;
+            return Ok(Stepper::Sph1d(Box::new(sim)));
+        }
+        if let Some(db) = &self.dam_break {
+            return build_dam_break(name, db, init);
+        }
+        if let Some(p) = &self.periodic_1d {
+            return build_periodic_1d(name, p, seed, init);
+        }
+        if let Some(p) = &self.periodic_2d {
+            return build_periodic_2d(name, p, seed, init);
+        }
+        unreachable!("validate checks that one section is present")
+    }
+}
+
+fn field_err(scene: &str, section: &str, e: Error) -> Error {
+    match e {
+        Error::Invalid { field, reason } => {
+            Error::SceneField { scene: scene.into(), field: format!("{section}.{field}"), reason }
+        }
+        e => e,
+    }
+}
+
+/// `f64` values rounded to `T`.
+fn narrow<T: Real>(v: &[f64]) -> Vec<T> {
+    v.iter().map(|&a| T::c(a)).collect()
+}
+
+/// `f64` points rounded to `T`.
+fn narrow2<T: Real>(v: &[[f64; 2]]) -> Vec<[T; 2]> {
+    v.iter().map(|p| [T::c(p[0]), T::c(p[1])]).collect()
+}
+
+fn build_dam_break<T: Real>(name: &str, db: &DamBreakScene, init: Option<&InitState>) -> Result<Stepper<T>> {
+    let sec = "dam_break.geometry";
+    let mut stepper =
+        match db.solver {
+            DamSolver::Wcsph => Stepper::Wcsph(Box::new(db.geometry.build_as::<T>(db.wcsph).map_err(|e| match e {
+                Error::Invalid { field, reason } if ["h_over_dx", "alpha", "delta", "cfl"].contains(&field) => {
+                    scene_err(name, &format!("dam_break.wcsph.{field}"), reason)
+                }
+                e => field_err(name, sec, e),
+            })?)),
+            DamSolver::Iisph => Stepper::Iisph(Box::new(db.geometry.build_iisph_as::<T>(db.iisph).map_err(|e| {
+                match e {
+                    Error::Invalid { field, reason }
+                        if ["h_over_dx", "cfl", "dt_max", "tolerance", "max_iterations", "omega", "nu"]
+                            .contains(&field) =>
+                    {
+                        Error::SceneField { scene: name.into(), field: format!("dam_break.iisph.{field}"), reason }
+                    }
+                    e => field_err(name, sec, e),
+                }
+            })?)),
+        };
+    if let Some(init) = init {
+        init.check(2, name)?;
+        let x = narrow2::<T>(&init.points2());
+        let v = narrow2::<T>(&init.velocities2());
+        stepper = match stepper {
+            Stepper::Wcsph(s) => {
+                let walls = s.x[s.n_fluid()..].to_vec();
+                let nf = x.len();
+                let mut phys = *s.physics();
+                phys.mass = init.uniform_mass(phys.mass, name)?;
+                let rho = match &init.density {
+                    Some(d) => narrow(d),
+                    None => vec![T::c(phys.rho0); nf],
+                };
+                let all: Vec<[T; 2]> = x.into_iter().chain(walls).collect();
+                let rho: Vec<T> = rho.into_iter().chain(std::iter::repeat_n(T::c(phys.rho0), all.len() - nf)).collect();
+                Stepper::Wcsph(Box::new(Wcsph::new(
+                    *s.params(),
+                    phys,
+                    all,
+                    v,
+                    rho,
+                    nf,
+                    container_domain(s.container()),
+                    s.container(),
+                )?))
+            }
+            Stepper::Iisph(s) => {
+                let walls = s.x[s.n_fluid()..].to_vec();
+                let nf = x.len();
+                let all: Vec<[T; 2]> = x.into_iter().chain(walls).collect();
+                Stepper::Iisph(Box::new(Iisph::new(
+                    *s.params(),
+                    s.rho0(),
+                    s.dx(),
+                    [0.0, -db.geometry.g],
+                    all,
+                    v,
+                    nf,
+                    container_domain(s.container()),
+                    s.container(),
+                )?))
+            }
+            s => s,
+        };
+        // Fluid must start inside the tank.
+        let [lo, hi] = match &stepper {
+            Stepper::Wcsph(s) => s.container(),
+            Stepper::Iisph(s) => s.container(),
+            Stepper::Sph1d(_) => unreachable!(),
+        };
+        for (i, p) in init.points2().iter().enumerate() {
+            if !(p[0] >= lo[0] && p[0] <= hi[0] && p[1] >= lo[1] && p[1] <= hi[1]) {
+                return Err(Error::OutsideDomain { index: i, position: p.to_vec(), lo: lo.to_vec(), hi: hi.to_vec() });
+            }
+        }
+    }
+    Ok(stepper)
+}
+
+/// The search box around a tank (walls included).
+fn container_domain<T: Real>(c: [[f64; 2]; 2]) -> Domain<T, 2> {
+    let m = 0.2 * (c[1][0] - c[0][0]).max(c[1][1] - c[0][1]);
+    Domain::bounded([T::c(c[0][0] - m), T::c(c[0][1] - m)], [T::c(c[1][0] + m), T::c(c[1][1] + m)])
+}
+
+fn build_periodic_1d<T: Real>(
+    name: &str,
+    p: &Periodic1dScene,
+    seed: u64,
+    init: Option<&InitState>,
+) -> Result<Stepper<T>> {
+    let sec = "periodic_1d";
+    let f = |field: &str, reason: String| scene_err(name, &format!("{sec}.{field}"), reason);
+    if !(p.x_lo.is_finite() && p.x_hi.is_finite() && p.x_hi > p.x_lo) {
+        return Err(f("x_hi", format!("need x_lo < x_hi, got {} {}", p.x_lo, p.x_hi)));
+    }
+    if !(p.rho0 > 0.0 && p.rho0.is_finite()) {
+        return Err(f("rho0", format!("{}; must be positive", p.rho0)));
+    }
+    if !(p.c0 > 0.0 && p.c0.is_finite()) {
+        return Err(f("c0", format!("{}; must be positive", p.c0)));
+    }
+    if !(0.0..1.0).contains(&p.amplitude) {
+        return Err(f("amplitude", format!("{}; use 0 <= amplitude < 1", p.amplitude)));
+    }
+    if p.n < 16 {
+        return Err(f("n", format!("{}; use at least 16 particles", p.n)));
+    }
+    if p.base_cells == 0 || p.octaves == 0 {
+        return Err(f("base_cells", "base_cells and octaves must be at least 1".into()));
+    }
+    let gamma = p.sph.gamma;
+    if !(gamma > 1.0 && gamma.is_finite()) {
+        return Err(f("sph.gamma", format!("{gamma}; the adiabatic index must exceed 1")));
+    }
+    let u0 = p.c0 * p.c0 / (gamma * (gamma - 1.0));
+    let len = p.x_hi - p.x_lo;
+    let domain = Domain::periodic([T::c(p.x_lo)], [T::c(p.x_hi)]);
+    let (x, v, m) = match init {
+        Some(init) => {
+            init.check(1, name)?;
+            let n = init.len();
+            let mass = init.mass.clone().unwrap_or_else(|| vec![p.rho0 * len / n as f64; n]);
+            (init.positions.clone(), init.velocities.clone().unwrap_or_else(|| vec![0.0; n]), mass)
+        }
+        None => {
+            // Equal masses placed by inverting the cumulative mass of ρ(x).
+            let noise = |x: f64| {
+                let mut s = 0.0;
+                for o in 0..p.octaves {
+                    let cells = p.base_cells << o;
+                    s += 0.5f64.powi(o as i32) * perlin1(seed, o as u64, (x - p.x_lo) / len * cells as f64, cells);
+                }
+                s
+            };
+            let fine = 64 * p.n;
+            let samples: Vec<f64> = (0..fine).map(|k| noise(p.x_lo + (k as f64 + 0.5) * len / fine as f64)).collect();
+            let nmax = samples.iter().fold(0.0f64, |a, &b| a.max(b.abs())).max(1e-300);
+            let rho: Vec<f64> = samples.iter().map(|s| p.rho0 * (1.0 + p.amplitude * s / nmax)).collect();
+            let cell = len / fine as f64;
+            let total: f64 = rho.iter().sum::<f64>() * cell;
+            let mass = total / p.n as f64;
+            let mut x = Vec::with_capacity(p.n);
+            let (mut k, mut acc) = (0usize, 0.0);
+            for i in 0..p.n {
+                let target = (i as f64 + 0.5) * mass;
+                while k < fine - 1 && acc + rho[k] * cell < target {
+                    acc += rho[k] * cell;
+                    k += 1;
+                }
+                let frac = ((target - acc) / (rho[k] * cell)).clamp(0.0, 1.0);
+                x.push(p.x_lo + (k as f64 + frac) * cell);
+            }
+            (x, vec![0.0; p.n], vec![mass; p.n])
+        }
+    };
+    let n = x.len();
+    let sim = Sph1d::new(p.sph, narrow(&x), narrow(&v), vec![T::c(u0); n], narrow(&m), None, n, domain).map_err(
+        |e| match e {
+            Error::Invalid { field: "m", reason } => scene_err(name, "init.mass", reason),
+            e => field_err(name, "periodic_1d.sph", e),
+        },
+    )?;
+    Ok(Stepper::Sph1d(Box::new(sim)))
+}
+
+fn build_periodic_2d<T: Real>(
+    name: &str,
+    p: &Periodic2dScene,
+    seed: u64,
+    init: Option<&InitState>,
+) -> Result<Stepper<T>> {
+    let sec = "periodic_2d";
+    let f = |field: &str, reason: String| scene_err(name, &format!("{sec}.{field}"), reason);
+    if !(p.length > 0.0 && p.length.is_finite()) {
+        return Err(f("length", format!("{}; must be positive", p.length)));
+    }
+    if !(p.rho0 > 0.0 && p.rho0.is_finite()) {
+        return Err(f("rho0", format!("{}; must be positive", p.rho0)));
+    }
+    if !(p.c0 > 0.0 && p.c0.is_finite()) {
+        return Err(f("c0", format!("{}; must be positive", p.c0)));
+    }
+    if !(p.u_max >= 0.0 && p.u_max.is_finite()) {
+        return Err(f("u_max", format!("{}; must be non-negative", p.u_max)));
+    }
+    if p.n < 8 {
+        return Err(f("n", format!("{}; use at least 8 particles per side", p.n)));
+    }
+    if p.base_cells == 0 || p.octaves == 0 {
+        return Err(f("base_cells", "base_cells and octaves must be at least 1".into()));
+    }
+    let l = p.length;
+    let dx = l / p.n as f64;
+    let domain = Domain::periodic([T::zero(); 2], [T::c(l); 2]);
+    let mut phys = WcsphPhysics { rho0: p.rho0, c0: p.c0, gravity: [0.0, 0.0], mass: p.rho0 * dx * dx, dx };
+    let (x, v, rho) = match init {
+        Some(init) => {
+            init.check(2, name)?;
+            phys.mass = init.uniform_mass(phys.mass, name)?;
+            let n = init.len();
+            (init.points2(), init.velocities2(), init.density.clone().unwrap_or_else(|| vec![p.rho0; n]))
+        }
+        None => {
+            let psi = |x: [f64; 2]| {
+                let mut s = 0.0;
+                for o in 0..p.octaves {
+                    let cells = p.base_cells << o;
+                    let c = cells as f64 / l;
+                    s += 0.5f64.powi(o as i32) * perlin2(seed, o as u64, [x[0] * c, x[1] * c], cells);
+                }
+                s
+            };
+            let eps = 1e-5 * l;
+            let mut x = Vec::with_capacity(p.n * p.n);
+            let mut v = Vec::with_capacity(p.n * p.n);
+            for j in 0..p.n {
+                for i in 0..p.n {
+                    let q = [(i as f64 + 0.5) * dx, (j as f64 + 0.5) * dx];
+                    let dpy = (psi([q[0], q[1] + eps]) - psi([q[0], q[1] - eps])) / (2.0 * eps);
+                    let dpx = (psi([q[0] + eps, q[1]]) - psi([q[0] - eps, q[1]])) / (2.0 * eps);
+                    x.push(q);
+                    v.push([dpy, -dpx]);
+                }
+            }
+            let n = v.len() as f64;
+            let mean = v.iter().fold([0.0; 2], |a, w| [a[0] + w[0] / n, a[1] + w[1] / n]);
+            let vmax =
+                v.iter().fold(0.0f64, |a, w| a.max(((w[0] - mean[0]).powi(2) + (w[1] - mean[1]).powi(2)).sqrt()));
+            let s = if vmax > 0.0 { p.u_max / vmax } else { 0.0 };
+            for w in &mut v {
+                *w = [(w[0] - mean[0]) * s, (w[1] - mean[1]) * s];
+            }
+            let nn = x.len();
+            (x, v, vec![p.rho0; nn])
+        }
+    };
+    let nf = x.len();
+    let sim = Wcsph::new(p.wcsph, phys, narrow2(&x), narrow2(&v), narrow(&rho), nf, domain, [[0.0, 0.0], [l, l]])
+        .map_err(|e| field_err(name, "periodic_2d.wcsph", e))?;
+    Ok(Stepper::Wcsph(Box::new(sim)))
+}

@@ -1,0 +1,223 @@
+//! The built simulation: [`Stepper`] (one of the solvers, stepped through
+//! [`Evolve`]), its output [`Frame`]s and [`run_frames`].
+
+use super::Scene;
+use crate::error::Result;
+use crate::iisph::Iisph;
+use crate::sph1d::Sph1d;
+use crate::wcsph::Wcsph;
+use pbdl_core::stepper::Evolve;
+use pbdl_core::Real;
+
+/// One output frame: per particle, row-major.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    /// Simulated time.
+    pub time: f64,
+    /// Positions `[n * dim]`.
+    pub positions: Vec<f64>,
+    /// Velocities `[n * dim]`.
+    pub velocities: Vec<f64>,
+    /// Densities `[n]`.
+    pub density: Vec<f64>,
+    /// Masses `[n]`.
+    pub mass: Vec<f64>,
+}
+
+/// A built stepper of one of the solvers, in precision `T` (`f32` or `f64`).
+#[derive(Clone, Debug)]
+pub enum Stepper<T: Real = f64> {
+    /// 1D compressible SPH.
+    Sph1d(Box<Sph1d<T>>),
+    /// 2D weakly compressible SPH.
+    Wcsph(Box<Wcsph<T>>),
+    /// 2D incompressible SPH.
+    Iisph(Box<Iisph<T>>),
+}
+
+/// `T` values widened to `f64` (exact).
+fn wide<T: Real>(v: &[T]) -> Vec<f64> {
+    v.iter().map(|a| a.wide()).collect()
+}
+
+/// `[T; 2]` points flattened and widened to `f64`.
+fn wide2<T: Real>(v: &[[T; 2]]) -> Vec<f64> {
+    v.iter().flat_map(|p| [p[0].wide(), p[1].wide()]).collect()
+}
+
+impl<T: Real> Stepper<T> {
+    /// Spatial dimension.
+    pub fn dim(&self) -> usize {
+        match self {
+            Stepper::Sph1d(_) => 1,
+            _ => 2,
+        }
+    }
+
+    /// The terms the stepper evaluates (see each solver's `operators`).
+    pub fn operators(&self) -> Vec<&'static str> {
+        match self {
+            Stepper::Sph1d(s) => s.operators(),
+            Stepper::Wcsph(s) => s.operators(),
+            Stepper::Iisph(s) => s.operators(),
+        }
+    }
+
+    /// Simulated time.
+    pub fn time(&self) -> f64 {
+        match self {
+            Stepper::Sph1d(s) => s.time(),
+            Stepper::Wcsph(s) => s.time(),
+            Stepper::Iisph(s) => s.time(),
+        }
+    }
+
+    /// Steps taken.
+    pub fn steps(&self) -> u64 {
+        match self {
+            Stepper::Sph1d(s) => s.steps(),
+            Stepper::Wcsph(s) => s.steps(),
+            Stepper::Iisph(s) => s.steps(),
+        }
+    }
+
+    /// The moving particles now (fluid / mobile only; ghosts and walls are in
+    /// [`Stepper::fixed_positions`]), widened to `f64`. IISPH densities are summation densities
+    /// at the current positions.
+    pub fn frame(&mut self) -> Result<Frame> {
+        Ok(match self {
+            Stepper::Sph1d(s) => {
+                let n = s.n_mobile();
+                Frame {
+                    time: s.time(),
+                    positions: wide(&s.x[..n]),
+                    velocities: wide(&s.v[..n]),
+                    density: wide(&s.rho[..n]),
+                    mass: wide(&s.m[..n]),
+                }
+            }
+            Stepper::Wcsph(s) => {
+                let n = s.n_fluid();
+                Frame {
+                    time: s.time(),
+                    positions: wide2(&s.x[..n]),
+                    velocities: wide2(&s.v),
+                    density: wide(&s.rho[..n]),
+                    mass: vec![s.physics().mass; n],
+                }
+            }
+            Stepper::Iisph(s) => {
+                let n = s.n_fluid();
+                let density = wide(&s.summation_density()?);
+                Frame {
+                    time: s.time(),
+                    positions: wide2(&s.x[..n]),
+                    velocities: wide2(&s.v),
+                    density,
+                    mass: vec![s.mass(); n],
+                }
+            }
+        })
+    }
+
+    /// Fixed particles (shock-tube ghosts, walls), row-major `[n_fixed * dim]`, widened to `f64`.
+    pub fn fixed_positions(&self) -> Vec<f64> {
+        match self {
+            Stepper::Sph1d(s) => wide(&s.x[s.n_mobile()..]),
+            Stepper::Wcsph(s) => wide2(&s.x[s.n_fluid()..]),
+            Stepper::Iisph(s) => wide2(&s.x[s.n_fluid()..]),
+        }
+    }
+
+    /// The box to draw: `[lo, hi]` (1D: x range and density range are chosen by the renderer).
+    pub fn view_box(&self) -> [[f64; 2]; 2] {
+        match self {
+            Stepper::Sph1d(s) => {
+                let d = s.domain();
+                [[d.lo[0].wide(), 0.0], [d.hi[0].wide(), 0.0]]
+            }
+            Stepper::Wcsph(s) => {
+                if s.x.len() > s.n_fluid() {
+                    let m = 3.0 * s.physics().dx;
+                    let [lo, hi] = s.container();
+                    [[lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m]]
+                } else {
+                    let d = s.domain();
+                    [d.lo.map(Real::wide), d.hi.map(Real::wide)]
+                }
+            }
+            Stepper::Iisph(s) => {
+                let m = 3.0 * s.dx();
+                let [lo, hi] = s.container();
+                [[lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m]]
+            }
+        }
+    }
+
+    /// Particle spacing (for render disc sizes).
+    pub fn spacing(&self) -> f64 {
+        match self {
+            Stepper::Sph1d(s) => {
+                let d = s.domain();
+                (d.hi[0].wide() - d.lo[0].wide()) / s.x.len().max(1) as f64
+            }
+            Stepper::Wcsph(s) => s.physics().dx,
+            Stepper::Iisph(s) => s.dx(),
+        }
+    }
+}
+
+/// Steps the solver it holds: the same steps as the solver's own [`Evolve`] impl (IISPH in equal
+/// steps, the others with the stable step and a shortened last one).
+impl<T: Real> Evolve for Stepper<T> {
+    type Error = crate::Error;
+
+    fn time(&self) -> f64 {
+        Stepper::time(self)
+    }
+
+    fn steps(&self) -> u64 {
+        Stepper::steps(self)
+    }
+
+    fn stable_dt(&self) -> f64 {
+        match self {
+            Stepper::Sph1d(s) => Evolve::stable_dt(&**s),
+            Stepper::Wcsph(s) => Evolve::stable_dt(&**s),
+            Stepper::Iisph(s) => Evolve::stable_dt(&**s),
+        }
+    }
+
+    fn step(&mut self, dt: f64) -> Result<()> {
+        match self {
+            Stepper::Sph1d(s) => s.step(dt),
+            Stepper::Wcsph(s) => s.step(dt),
+            Stepper::Iisph(s) => s.step(dt),
+        }
+    }
+
+    fn next_dt(&self, t_end: f64) -> f64 {
+        match self {
+            Stepper::Sph1d(s) => s.next_dt(t_end),
+            Stepper::Wcsph(s) => s.next_dt(t_end),
+            Stepper::Iisph(s) => s.next_dt(t_end),
+        }
+    }
+}
+
+/// Runs `stepper` for the scene's frames and returns the initial frame plus one per
+/// `frame_dt`; `on_frame(k)` is called after frame `k`.
+pub fn run_frames<T: Real>(
+    scene: &Scene,
+    stepper: &mut Stepper<T>,
+    mut on_frame: impl FnMut(usize),
+) -> Result<Vec<Frame>> {
+    let mut frames = vec![stepper.frame()?];
+    let t0 = stepper.time();
+    for k in 1..=scene.frames {
+        stepper.run_until(t0 + k as f64 * scene.frame_dt)?;
+        frames.push(stepper.frame()?);
+        on_frame(k);
+    }
+    Ok(frames)
+}
