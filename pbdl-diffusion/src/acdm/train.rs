@@ -6,9 +6,8 @@ use super::model::{Method, Model};
 use crate::ddpm::Loss;
 use crate::{Error, Result};
 use candle_core::{Tensor, D};
-use candle_nn::Optimizer as _;
-use pbdl_core::io::{latest_checkpoint, save_varmap, CheckpointMeta};
-use pbdl_core::train::{train_step, AdamConfig, ClipConfig, NanGuard, OptimizerConfig, Progress, ScalarLog};
+use pbdl_core::io::CheckpointMeta;
+use pbdl_core::train::{AdamConfig, ClipConfig, LoopConfig, LoopReport, OptimizerConfig, TrainLoop};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -118,13 +117,8 @@ pub fn sample_windows(seqs: &[Tensor], len: usize, batch: usize, rng: &mut impl 
             hint: "give at least one sequence with as many frames as a window (history + targets)",
         });
     }
-    let mut w = Vec::with_capacity(batch);
-    for _ in 0..batch {
-        let s = usable[rng.random_range(0..usable.len())];
-        let t0 = rng.random_range(0..=s.dim(0)? - len);
-        w.push(s.narrow(0, t0, len)?);
-    }
-    Ok(Tensor::stack(&w, 0)?)
+    // The same draws as pbdl-core's sampler over the usable sequences (checked above).
+    Ok(pbdl_core::data::sample_windows(seqs, len, batch, rng)?)
 }
 
 /// The training loss of `model` on a window batch `[B, L, C, ny, nx]`.
@@ -175,55 +169,32 @@ pub fn loss(model: &Model, windows: &Tensor, seed: u64) -> Result<Tensor> {
 /// non-finite loss or gradient, leaving the last checkpoint intact.
 pub fn train(model: &Model, seqs: &[Tensor], config: &TrainConfig, dir: Option<&Path>) -> Result<TrainReport> {
     config.validate()?;
-    let mut start = 0u64;
-    if let Some(dir) = dir {
-        if let Some(path) = latest_checkpoint(dir)? {
-            start = pbdl_core::io::load_varmap(&path, model.varmap())?.step;
-        }
-    }
-    let vars = model.varmap().all_vars();
-    let mut opt =
-        OptimizerConfig::Adam(AdamConfig { lr: config.lr_at(start), ..Default::default() }).build(vars.clone())?;
-    let clip = ClipConfig::Norm { max_norm: config.clip_norm };
-    let mut guard = NanGuard::new();
-    let mut log = None;
-    if let Some(dir) = dir {
-        guard = guard.with_checkpoint(dir.display().to_string());
-        std::fs::create_dir_all(dir).map_err(|e| pbdl_core::Error::io(dir, e))?;
-        log = Some(ScalarLog::open(dir.join("loss.csv"))?);
-    }
-    let progress = Progress::new(config.steps as u64);
-    let mut rng = pbdl_core::seed::rng(config.seed ^ start.wrapping_mul(0x2545_F491_4F6C_DD1D));
+    let loop_cfg = LoopConfig {
+        steps: config.steps as u64,
+        checkpoint_every: config.checkpoint_every as u64,
+        dir: dir.map(Path::to_path_buf),
+        clip: ClipConfig::Norm { max_norm: config.clip_norm },
+        progress: true,
+    };
+    let run = TrainLoop::resume(model.varmap(), loop_cfg)?;
+    // A resumed run draws other windows than the first pass did.
+    let mut rng = pbdl_core::seed::rng(config.seed ^ run.start().wrapping_mul(0x2545_F491_4F6C_DD1D));
     let len = window_len(model.config().method);
     let meta = |step: u64| CheckpointMeta {
         step,
         seed: Some(config.seed),
         config: serde_json::json!({ "model": model.config(), "train": config }),
     };
-    let t0 = std::time::Instant::now();
-    let mut losses = Vec::new();
-    for step in start..config.steps as u64 {
-        opt.set_learning_rate(config.lr_at(step));
-        let w = sample_windows(seqs, len, config.batch, &mut rng)?;
-        let l = loss(model, &w, rng.random())?;
-        let info = train_step(step, &l, &mut opt, &vars, &clip, &mut guard)?;
-        losses.push((step, info.loss));
-        if let Some(log) = log.as_mut() {
-            log.log(
-                step,
-                &[("loss", info.loss), ("grad_norm", info.grad_norm), ("seconds", t0.elapsed().as_secs_f64())],
-            )?;
-        }
-        progress.update(step + 1, info.loss);
-        let done = step + 1 == config.steps as u64;
-        if let Some(dir) = dir {
-            if done || (config.checkpoint_every > 0 && (step + 1) % config.checkpoint_every as u64 == 0) {
-                save_varmap(dir.join(format!("step-{}", step + 1)), model.varmap(), &meta(step + 1))?;
-            }
-        }
-    }
-    progress.finish();
-    let seconds = t0.elapsed().as_secs_f64();
-    let n = losses.len().max(1) as f64;
-    Ok(TrainReport { losses, resumed_from: start, seconds, seconds_per_step: seconds / n })
+    let adam = OptimizerConfig::Adam(AdamConfig { lr: config.lr, ..Default::default() });
+    let report = run.run(
+        &adam,
+        |step| config.lr_at(step),
+        meta,
+        |_| {
+            let w = sample_windows(seqs, len, config.batch, &mut rng)?;
+            loss(model, &w, rng.random())
+        },
+    )?;
+    let LoopReport { losses, resumed_from, seconds, seconds_per_step } = report;
+    Ok(TrainReport { losses, resumed_from, seconds, seconds_per_step })
 }

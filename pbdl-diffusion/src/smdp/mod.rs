@@ -32,5 +32,5 @@ pub mod sampler;
 pub mod sde;
 pub mod toy;
 
-pub use physics::{AffineDrift, Physics, QuadraticDrift, ScalarDrift, ToyDrift};
+pub use physics::{AffineDrift, Physics, QuadraticDrift, ScalarDrift, StepperPhysics, ToyDrift};
 pub use sde::{Paths, ToySde};

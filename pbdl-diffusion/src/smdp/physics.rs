@@ -131,10 +131,68 @@ impl Physics for ToyDrift {
     }
 }
 
+/// Any simulator with a fixed step as SMDP's physics: the increment of one step is
+/// `step(x) - x`. The pbdl-grid solvers (and any [`pbdl_core::stepper::Stepper`] on tensors)
+/// plug into SMDP's losses and samplers this way; the sampler's `dt` must be the stepper's.
+#[derive(Clone, Debug)]
+pub struct StepperPhysics<S>(pub S);
+
+impl<S> Physics for StepperPhysics<S>
+where
+    S: pbdl_core::stepper::Stepper<State = Tensor>,
+    Error: From<S::Error>,
+{
+    fn increment(&self, x: &Tensor, _t: f64, dt: f64) -> Result<Tensor> {
+        let own = self.0.dt();
+        if (dt - own).abs() > 1e-12 * own.abs().max(1.0) {
+            return Err(Error::InvalidConfig {
+                name: "dt",
+                value: dt.to_string(),
+                hint: "a stepper has a fixed time step: sample and train with the stepper's dt",
+            });
+        }
+        Ok((self.0.step(x)? - x)?)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use candle_core::Device;
+
+    /// The affine drift as a stepper (explicit Euler) gives the same increments through the
+    /// adapter, and a wrong dt is a typed error.
+    #[test]
+    fn a_stepper_is_physics_through_the_adapter() {
+        struct EulerDecay {
+            a: f64,
+            dt: f64,
+        }
+        impl pbdl_core::stepper::Stepper for EulerDecay {
+            type State = Tensor;
+            type Error = candle_core::Error;
+            fn dt(&self) -> f64 {
+                self.dt
+            }
+            fn operators(&self) -> Vec<&'static str> {
+                vec!["decay.explicit_euler"]
+            }
+            fn differentiability(&self) -> pbdl_core::stepper::Differentiability {
+                pbdl_core::stepper::Differentiability::Full
+            }
+            fn step(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+                x.affine(1.0 - self.a * self.dt, 0.0)
+            }
+        }
+        let x = Tensor::new(&[0.3f64, -1.2, 2.0], &Device::Cpu).unwrap();
+        let p = StepperPhysics(EulerDecay { a: 0.5, dt: 0.01 });
+        let got: Vec<f64> = p.increment(&x, 0.0, 0.01).unwrap().to_vec1().unwrap();
+        let want: Vec<f64> = AffineDrift { a: 0.5 }.increment(&x, 0.0, 0.01).unwrap().to_vec1().unwrap();
+        for (g, w) in got.iter().zip(&want) {
+            assert!((g - w).abs() < 1e-15, "{got:?} vs {want:?}");
+        }
+        assert!(matches!(p.increment(&x, 0.0, 0.02), Err(Error::InvalidConfig { name: "dt", .. })));
+    }
 
     #[test]
     fn tensor_drift_matches_scalar_drift_and_its_derivative() {
