@@ -355,6 +355,32 @@ impl Fluid {
     }
 }
 
+/// [`Fluid`] as a [`pbdl_core::stepper::Stepper`] (state: [`FluidState`]). Its
+/// [`step`](pbdl_core::stepper::Stepper::step) is [`Fluid::step`] without an inflow rate: it fits
+/// steppers without a density inflow (obstacle flows, a passive density); one built with an
+/// inflow refuses (typed [`Error::Invalid`]), call [`Fluid::step`] with the rate instead.
+impl pbdl_core::stepper::Stepper for Fluid {
+    type State = FluidState;
+    type Error = Error;
+
+    fn dt(&self) -> f64 {
+        self.config.dt
+    }
+
+    fn operators(&self) -> Vec<&'static str> {
+        self.operators.clone()
+    }
+
+    /// Full: every part has a hand-written adjoint (see the module docs).
+    fn differentiability(&self) -> pbdl_core::stepper::Differentiability {
+        pbdl_core::stepper::Differentiability::Full
+    }
+
+    fn step(&self, state: &FluidState) -> Result<FluidState> {
+        Fluid::step(self, state, None)
+    }
+}
+
 fn advect<F: Advected>(q: &F, u: &MacField, dt: f64, scheme: Advection) -> Result<F> {
     match scheme {
         Advection::SemiLagrangian => semi_lagrangian(q, u, dt),

@@ -17,11 +17,11 @@
 //! | [`time_stepping`] | [`ButcherTableau`] as data (RK4, SSP-RK3, forward Euler), [`time_stepping::projected_runge_kutta`] |
 //! | [`stability`] | [`stability::stable_time_step`], [`stability::check_time_step`] (typed [`Error::Unstable`]) |
 //! | [`burgers`] | [`burgers::ScalarLaw`]: periodic 1D/2D viscous Burgers and advection-diffusion (conservative, second order, differentiable), [`burgers::cole_hopf_sine`] |
-//! | [`scene`] | [`scene::Scene`]: TOML scenes (embedded defaults), built into a [`scene::Simulation`] that holds only the operators the scene needs |
+//! | [`scene`] | [`scene::Scene`]: TOML scenes (embedded defaults), built into a [`scene::Simulation`] that holds only the operators the scene needs (one file per physics kind behind one trait) |
 //! | [`obstacle`] | [`Obstacle`] (cylinder, box), [`ObstacleMask`]; masked projection in [`pressure::make_incompressible_masked`] |
 //! | [`forcing`] | [`forcing::buoyancy`] (Boussinesq), [`forcing::DensitySource`], [`forcing::VelocitySource`] |
 //! | [`fluid`] | [`Fluid`]: smoke plume / obstacle-flow stepper (semi-Lagrangian or MacCormack, buoyancy, inflow, implicit viscosity, obstacles), listing its operators |
-//! | [`navier_stokes`] | [`NavierStokes`]: a stepper built from a config, listing its operators |
+//! | [`navier_stokes`] | [`NavierStokes`]: a stepper built from a config, listing its operators; a [`pbdl_core::stepper::Stepper`] (as are [`Fluid`] and [`grid3d::NavierStokes3d`]) |
 //! | [`grid3d`] | 3D: [`grid3d::MacField3d`], flux-form advection, FFT projection (periodic) and MIC(0)-CG projection (walled box, [`grid3d::Cavity3d`]), [`grid3d::NavierStokes3d`] (RK4, projection per stage), the ABC exact solution |
 //! | [`error`] | [`Error`], [`Result`] |
 //! | [`diagnostics`] | kinetic energy, relative divergence, Strouhal number by zero crossings, [`diagnostics::track_invariants`] (first step at which an invariant breaks) |

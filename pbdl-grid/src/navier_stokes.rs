@@ -4,7 +4,7 @@
 //! A [`NavierStokes`] stepper is *built* once from a grid, boundaries and a
 //! [`NavierStokesConfig`]: it factors the pressure matrix (or plans the FFT) and keeps only the
 //! operators the configuration needs (no viscous term at `nu = 0`); [`NavierStokes::operators`]
-//! lists them.
+//! lists them. It is a [`pbdl_core::stepper::Stepper`] (state: the [`MacField`] velocity).
 
 use crate::advect::MomentumRhs;
 use crate::field::MacField;
@@ -14,6 +14,7 @@ use crate::time_stepping::{projected_runge_kutta, ButcherTableau, Scheme};
 use crate::{Boundaries, Error, Grid, Result};
 use candle_core::{CpuStorage, Tensor};
 use pbdl_core::op::apply3;
+use pbdl_core::stepper::{Differentiability, Stepper};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -185,6 +186,50 @@ impl NavierStokes {
             });
         }
         Ok(())
+    }
+}
+
+/// [`NavierStokes`] as a [`pbdl_core::stepper::Stepper`]: state in, state out, for code that is
+/// generic over simulators (rollouts, solver-in-the-loop training). [`Stepper::step`] is
+/// [`NavierStokes::step`] (checked); every operator has a hand-written adjoint, so gradients flow
+/// through a rollout.
+///
+/// ```
+/// use candle_core::DType;
+/// use pbdl_core::stepper::{Differentiability, Stepper};
+/// use pbdl_grid::{Boundaries, Grid, MacField, NavierStokes, NavierStokesConfig, Scheme};
+/// use std::f64::consts::PI;
+///
+/// let (grid, bc) = (Grid::new(16, 16, 2.0 * PI, 2.0 * PI)?, Boundaries::periodic());
+/// let config = NavierStokesConfig { nu: 0.01, dt: 0.05, scheme: Scheme::Rk4 };
+/// let ns = NavierStokes::new(grid, bc, config)?;
+/// let u0 = MacField::from_fn(grid, bc, DType::F64, |x, y| [x.sin() * y.cos(), -x.cos() * y.sin()])?;
+/// let states = ns.rollout(&ns.project(&u0)?, 4)?; // the start and 4 steps
+/// assert_eq!(states.len(), 5);
+/// assert_eq!(Stepper::operators(&ns), ns.operators());
+/// assert_eq!(ns.differentiability(), Differentiability::Full);
+/// # Ok::<(), pbdl_grid::Error>(())
+/// ```
+impl Stepper for NavierStokes {
+    type State = MacField;
+    type Error = Error;
+
+    fn dt(&self) -> f64 {
+        self.config.dt
+    }
+
+    fn operators(&self) -> Vec<&'static str> {
+        self.operators.clone()
+    }
+
+    /// Full: flux-form advection, the fused combine-and-project and the projection all have
+    /// hand-written adjoints.
+    fn differentiability(&self) -> Differentiability {
+        Differentiability::Full
+    }
+
+    fn step(&self, u: &MacField) -> Result<MacField> {
+        NavierStokes::step(self, u)
     }
 }
 

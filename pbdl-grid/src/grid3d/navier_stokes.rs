@@ -3,7 +3,7 @@
 //!
 //! A [`NavierStokes3d`] is built once from a grid and a [`NavierStokes3dConfig`]: it plans the
 //! FFTs and keeps only the operators the configuration needs (no viscous term at `nu = 0`);
-//! [`NavierStokes3d::operators`] lists them.
+//! [`NavierStokes3d::operators`] lists them. It is a [`pbdl_core::stepper::Stepper`].
 
 use super::field::MacField3d;
 use super::momentum::{check_nu, MomentumRhs3d};
@@ -15,6 +15,7 @@ use crate::time_stepping::{projected_runge_kutta, ButcherTableau, Scheme};
 use crate::{Error, Result};
 use candle_core::Tensor;
 use pbdl_core::op::apply3;
+use pbdl_core::stepper::{Differentiability, Stepper};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -181,5 +182,31 @@ impl NavierStokes3d {
             });
         }
         Ok(())
+    }
+}
+
+/// [`NavierStokes3d`] as a [`pbdl_core::stepper::Stepper`] (state: the [`MacField3d`] velocity):
+/// [`Stepper::step`] is [`NavierStokes3d::step`] (checked); every operator has a hand-written
+/// adjoint.
+impl Stepper for NavierStokes3d {
+    type State = MacField3d;
+    type Error = Error;
+
+    fn dt(&self) -> f64 {
+        self.config.dt
+    }
+
+    fn operators(&self) -> Vec<&'static str> {
+        self.operators.clone()
+    }
+
+    /// Full: flux-form advection, the fused combine-and-project and the FFT projection all have
+    /// hand-written adjoints.
+    fn differentiability(&self) -> Differentiability {
+        Differentiability::Full
+    }
+
+    fn step(&self, u: &MacField3d) -> Result<MacField3d> {
+        NavierStokes3d::step(self, u)
     }
 }

@@ -40,6 +40,7 @@
 
 mod build;
 mod init;
+mod kinds;
 mod output;
 
 pub use build::{Simulation, State, Trajectory};
