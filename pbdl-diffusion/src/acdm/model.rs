@@ -238,7 +238,7 @@ impl FramePredictor for Model {
         let b = d[0];
         let cond = prev.reshape((b, self.history() * CHANNELS, ny, nx))?;
         match &self.diffusion {
-            None => self.unet.forward(&cond, None),
+            None => Ok(self.unet.forward(&cond, None)?),
             Some(diff) => {
                 let x = Diffusion::noise(&[b, CHANNELS, ny, nx], DType::F32, prev.device(), seed)?;
                 match self.sampler {

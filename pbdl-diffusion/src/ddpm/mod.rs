@@ -303,4 +303,3 @@ fn predict_checked<M: NoisePredictor + ?Sized>(
     }
     Ok(out)
 }
-

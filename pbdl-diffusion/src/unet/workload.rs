@@ -74,7 +74,7 @@ impl UnetFixture {
 
     /// One sampling step: the noise prediction alone.
     pub fn sample_step(&self) -> Result<Tensor> {
-        self.net.forward(&self.x, Some(&self.t))
+        Ok(self.net.forward(&self.x, Some(&self.t))?)
     }
 
     /// Number of trainable scalars.

@@ -553,5 +553,10 @@ pub fn load_sequences(path: impl AsRef<Path>) -> Result<Vec<Sequence>> {
 /// Loads `path` if it holds readable sequences, otherwise generates with `make` and writes it
 /// there atomically (a cache; see [`pbdl_core::data::cached`]).
 pub fn cached(path: impl AsRef<Path>, make: impl FnOnce() -> Result<Vec<Sequence>>) -> Result<Vec<Sequence>> {
-    pbdl_core::data::cached(path, |p: &Path| load_sequences(p), make, |p: &Path, seqs: &Vec<Sequence>| save_sequences(p, seqs))
+    pbdl_core::data::cached(
+        path,
+        |p: &Path| load_sequences(p),
+        make,
+        |p: &Path, seqs: &Vec<Sequence>| save_sequences(p, seqs),
+    )
 }

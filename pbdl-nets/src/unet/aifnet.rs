@@ -23,9 +23,10 @@
 //! attention with `heads` heads of width `block output / heads`, bias-free 1x1 projections,
 //! a residual and a GroupNorm after it. GELU is the exact (erf) one.
 
-use super::attention::full_attention;
-use super::layers::{conv2d_layer, sinusoidal_embedding, Linear};
-use crate::ddpm::NoisePredictor;
+use crate::attention::full_attention;
+use crate::embedding::sinusoidal_embedding;
+use crate::layers::{conv2d_layer, Linear};
+use crate::resample::{space_to_depth, upsample_nearest2};
 use crate::{Error, Result};
 use candle_core::{Module, Tensor};
 use candle_nn::VarBuilder;
@@ -218,21 +219,6 @@ impl SelfAttention {
     }
 }
 
-/// Space-to-depth: `[b, c, 2h, 2w] -> [b, 4c, h, w]`, channel `4 c + 2 dy + dx`.
-fn space_to_depth(x: &Tensor) -> Result<Tensor> {
-    let (b, c, h, w) = x.dims4()?;
-    let y = x.reshape((b, c, h / 2, 2, w / 2, 2))?.permute([0, 1, 3, 5, 2, 4])?;
-    Ok(y.contiguous()?.reshape((b, 4 * c, h / 2, w / 2))?)
-}
-
-/// Nearest-neighbour 2x upsampling `[b, c, h, w] -> [b, c, 2h, 2w]` (its gradient sums the
-/// four copies).
-fn upsample_nearest2(x: &Tensor) -> Result<Tensor> {
-    let (b, c, h, w) = x.dims4()?;
-    let y = x.reshape((b, c, h, 1, w, 1))?.broadcast_as((b, c, h, 2, w, 2))?;
-    Ok(y.contiguous()?.reshape((b, c, 2 * h, 2 * w))?)
-}
-
 /// One element of a block sequence.
 #[derive(Clone, Debug)]
 enum Layer {
@@ -316,14 +302,14 @@ impl Block {
 /// ```
 /// use candle_core::{DType, Device, Tensor};
 /// use candle_nn::{VarBuilder, VarMap};
-/// use pbdl_diffusion::unet::{AifNet, AifNetConfig};
+/// use pbdl_nets::unet::{AifNet, AifNetConfig};
 ///
 /// let varmap = VarMap::new();
 /// let net = AifNet::new(AifNetConfig::airfoil_32(), VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
 /// let x = Tensor::zeros((2, 6, 32, 32), DType::F32, &Device::Cpu)?; // x_t and the condition
 /// let t = Tensor::new(&[1f32, 200.0], &Device::Cpu)?;
 /// assert_eq!(net.forward(&x, &t)?.dims(), &[2, 3, 32, 32]);
-/// # Ok::<(), pbdl_diffusion::Error>(())
+/// # Ok::<(), pbdl_nets::Error>(())
 /// ```
 #[derive(Clone, Debug)]
 pub struct AifNet {
@@ -430,50 +416,5 @@ impl AifNet {
         }
         let h = self.final_block.forward(&h, &t_enc)?;
         Ok(self.final_conv.forward(&h)?)
-    }
-}
-
-impl NoisePredictor for AifNet {
-    fn predict(&self, x: &Tensor, t: &Tensor) -> Result<Tensor> {
-        self.forward(x, t)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use candle_core::Device;
-
-    #[test]
-    fn space_to_depth_and_nearest_upsampling_follow_their_index_maps() {
-        let x = Tensor::arange(0f32, 32.0, &Device::Cpu).unwrap().reshape((1, 2, 4, 4)).unwrap();
-        let y = space_to_depth(&x).unwrap();
-        assert_eq!(y.dims(), &[1, 8, 2, 2]);
-        let x4: Vec<f32> = x.flatten_all().unwrap().to_vec1().unwrap();
-        let y4: Vec<f32> = y.flatten_all().unwrap().to_vec1().unwrap();
-        // y[c*4 + 2 p1 + p2, i, j] = x[c, 2 i + p1, 2 j + p2]
-        for c in 0..2 {
-            for p1 in 0..2 {
-                for p2 in 0..2 {
-                    for i in 0..2 {
-                        for j in 0..2 {
-                            let yi = ((c * 4 + 2 * p1 + p2) * 2 + i) * 2 + j;
-                            let xi = (c * 4 + 2 * i + p1) * 4 + 2 * j + p2;
-                            assert_eq!(y4[yi], x4[xi]);
-                        }
-                    }
-                }
-            }
-        }
-        let u = upsample_nearest2(&y).unwrap();
-        assert_eq!(u.dims(), &[1, 8, 4, 4]);
-        let u4: Vec<f32> = u.flatten_all().unwrap().to_vec1().unwrap();
-        for c in 0..8 {
-            for i in 0..4 {
-                for j in 0..4 {
-                    assert_eq!(u4[(c * 4 + i) * 4 + j], y4[(c * 2 + i / 2) * 2 + j / 2]);
-                }
-            }
-        }
     }
 }

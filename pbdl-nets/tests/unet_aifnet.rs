@@ -5,9 +5,8 @@
 
 use candle_core::{DType, Tensor};
 use candle_nn::{VarBuilder, VarMap};
-use pbdl_diffusion::ddpm::NoisePredictor;
-use pbdl_diffusion::unet::{count_parameters, AifNet, AifNetConfig};
-use pbdl_diffusion::Error;
+use pbdl_nets::unet::{AifNet, AifNetConfig};
+use pbdl_nets::{count_parameters, Error};
 use std::time::Instant;
 
 mod common;
@@ -27,7 +26,7 @@ fn check_shape(name: &str, config: AifNetConfig, n: usize) {
     assert_eq!(y.dims(), &[1, 3, n, n]);
     let v: Vec<f32> = y.flatten_all().unwrap().to_vec1().unwrap();
     assert!(v.iter().all(|x| x.is_finite()));
-    assert_eq!(net.predict(&x, &t).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap(), v);
+    // (That `NoisePredictor::predict` is this forward pass is tested in pbdl-diffusion.)
 }
 
 #[test]

@@ -21,9 +21,9 @@
 //! differ). GELU is the exact (erf) one, GroupNorm eps 1e-5, as PyTorch's defaults.
 //! Variable names follow the official PyTorch module tree (`downs.0.0.ds_conv.weight`, ...).
 
-use super::attention::{AttentionKind, ResidualAttention};
-use super::layers::{conv2d_layer, sinusoidal_embedding, ConvTranspose2d, Linear};
-use crate::ddpm::NoisePredictor;
+use crate::attention::{AttentionKind, ResidualAttention};
+use crate::embedding::sinusoidal_embedding;
+use crate::layers::{conv2d_layer, ConvTranspose2d, Linear};
 use crate::{Error, Result};
 use candle_core::{Module, Tensor};
 use candle_nn::VarBuilder;
@@ -220,7 +220,8 @@ struct Up {
 /// ```
 /// use candle_core::{DType, Device, Tensor};
 /// use candle_nn::{VarBuilder, VarMap};
-/// use pbdl_diffusion::unet::{count_parameters, AcdmUnet, AcdmUnetConfig};
+/// use pbdl_nets::unet::{AcdmUnet, AcdmUnetConfig};
+/// use pbdl_nets::count_parameters;
 ///
 /// let varmap = VarMap::new();
 /// let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
@@ -229,7 +230,7 @@ struct Up {
 /// let t = Tensor::new(&[0f32, 19.0], &Device::Cpu)?;
 /// assert_eq!(net.forward(&x, Some(&t))?.dims(), &[2, 3, 16, 8]);
 /// assert!(count_parameters(&varmap) > 0);
-/// # Ok::<(), pbdl_diffusion::Error>(())
+/// # Ok::<(), pbdl_nets::Error>(())
 /// ```
 #[derive(Clone, Debug)]
 pub struct AcdmUnet {
@@ -378,11 +379,5 @@ impl AcdmUnet {
             }
             _ => Ok(()),
         }
-    }
-}
-
-impl NoisePredictor for AcdmUnet {
-    fn predict(&self, x: &Tensor, t: &Tensor) -> Result<Tensor> {
-        self.forward(x, Some(t))
     }
 }
