@@ -7,7 +7,7 @@
 //! multiplier, so it is self-adjoint: its vector-Jacobian product is the same step applied to the
 //! output gradient.
 
-use super::physics::Physics;
+use super::physics::PhysicsDrift;
 use crate::{Error, Result};
 use candle_core::{DType, Device, Shape, Tensor};
 use pbdl_core::op::{apply1, Kernel1, Op1};
@@ -113,7 +113,7 @@ pub fn heat_step(x: &Tensor, dt: f64) -> Result<Tensor> {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct HeatPhysics;
 
-impl Physics for HeatPhysics {
+impl PhysicsDrift for HeatPhysics {
     fn increment(&self, x: &Tensor, _t: f64, dt: f64) -> Result<Tensor> {
         Ok((heat_step(x, dt)? - x)?)
     }

@@ -4,7 +4,7 @@
 
 use super::heat::{mse, spectral_error, HeatProblem};
 use super::heat_net::HeatScoreNet;
-use super::physics::Physics;
+use super::physics::PhysicsDrift;
 use super::sampler::Sampler;
 use crate::{Error, Result};
 use candle_core::{DType, Device, Tensor};

@@ -7,7 +7,7 @@
 //!
 //! | module | what it gives you |
 //! |---|---|
-//! | [`physics`] | the [`Physics`] drift trait (candle, differentiable) and the toy drifts |
+//! | [`physics`] | the [`PhysicsDrift`] drift trait (candle, differentiable) and the toy drifts |
 //! | [`sde`] | the toy SDE and its seeded, batched Euler-Maruyama simulator |
 //! | [`analytic`] | closed-form score and posterior of the affine toy; the digest's posterior table |
 //! | [`euler_law`] | the exact law of the toy's Euler chain on a grid: score, 1-step loss minimiser, posterior |
@@ -32,5 +32,5 @@ pub mod sampler;
 pub mod sde;
 pub mod toy;
 
-pub use physics::{AffineDrift, Physics, QuadraticDrift, ScalarDrift, StepperPhysics, ToyDrift};
+pub use physics::{AffineDrift, PhysicsDrift, QuadraticDrift, ScalarDrift, StepperDrift, ToyDrift};
 pub use sde::{Paths, ToySde};

@@ -1,6 +1,6 @@
 //! The physics drift `P(x, t)` of the SDE `dx = P(x) dt + g dW`, and its inverse step.
 //!
-//! [`Physics`] works on candle tensors (differentiable, any shape); [`ScalarDrift`] is the
+//! [`PhysicsDrift`] works on candle tensors (differentiable, any shape); [`ScalarDrift`] is the
 //! same drift on plain `f64` for the 1-D toy problems, where the simulator and the hand-written
 //! score network run without tensors.
 
@@ -8,7 +8,7 @@ use crate::{Error, Result};
 use candle_core::Tensor;
 
 /// A physics drift that can be differentiated through.
-pub trait Physics {
+pub trait PhysicsDrift {
     /// The increment of one physics step of length `dt` from `x` at time `t`: `dt * P(x, t)`
     /// (for a solver step `x -> S(x)` this is `S(x) - x`).
     fn increment(&self, x: &Tensor, t: f64, dt: f64) -> Result<Tensor>;
@@ -109,20 +109,20 @@ impl ScalarDrift for ToyDrift {
     }
 }
 
-impl Physics for QuadraticDrift {
+impl PhysicsDrift for QuadraticDrift {
     fn increment(&self, x: &Tensor, _t: f64, dt: f64) -> Result<Tensor> {
         // -lambda |x| x, written with differentiable pieces.
         Ok((x.abs()? * x)?.affine(-self.lambda * dt, 0.0)?)
     }
 }
 
-impl Physics for AffineDrift {
+impl PhysicsDrift for AffineDrift {
     fn increment(&self, x: &Tensor, _t: f64, dt: f64) -> Result<Tensor> {
         Ok(x.affine(-self.a * dt, 0.0)?)
     }
 }
 
-impl Physics for ToyDrift {
+impl PhysicsDrift for ToyDrift {
     fn increment(&self, x: &Tensor, t: f64, dt: f64) -> Result<Tensor> {
         match self {
             ToyDrift::Quadratic(q) => q.increment(x, t, dt),
@@ -135,9 +135,9 @@ impl Physics for ToyDrift {
 /// `step(x) - x`. The pbdl-grid solvers (and any [`pbdl_core::stepper::Stepper`] on tensors)
 /// plug into SMDP's losses and samplers this way; the sampler's `dt` must be the stepper's.
 #[derive(Clone, Debug)]
-pub struct StepperPhysics<S>(pub S);
+pub struct StepperDrift<S>(pub S);
 
-impl<S> Physics for StepperPhysics<S>
+impl<S> PhysicsDrift for StepperDrift<S>
 where
     S: pbdl_core::stepper::Stepper<State = Tensor>,
     Error: From<S::Error>,
@@ -185,7 +185,7 @@ mod tests {
             }
         }
         let x = Tensor::new(&[0.3f64, -1.2, 2.0], &Device::Cpu).unwrap();
-        let p = StepperPhysics(EulerDecay { a: 0.5, dt: 0.01 });
+        let p = StepperDrift(EulerDecay { a: 0.5, dt: 0.01 });
         let got: Vec<f64> = p.increment(&x, 0.0, 0.01).unwrap().to_vec1().unwrap();
         let want: Vec<f64> = AffineDrift { a: 0.5 }.increment(&x, 0.0, 0.01).unwrap().to_vec1().unwrap();
         for (g, w) in got.iter().zip(&want) {
