@@ -53,6 +53,7 @@ pub mod domain;
 pub mod error;
 pub mod fd;
 pub mod field;
+mod float;
 pub mod fluid;
 pub mod forcing;
 pub mod grid3d;

@@ -8,17 +8,18 @@
 
 use crate::advect::MomentumRhs;
 use crate::field::MacField;
-use crate::pressure::{CombineProject, PressureSolver, Projection};
-use crate::stability::{check_time_step, stable_time_step, StabilityReport};
+use crate::pressure::{PressureSolver, Projection};
+use crate::stability::{check_nu, check_time_step, stable_time_step, StabilityReport};
+use crate::time_stepping::fused::fused_projected_runge_kutta;
 use crate::time_stepping::{projected_runge_kutta, ButcherTableau, Scheme};
 use crate::{Boundaries, Error, Grid, Result};
 use candle_core::{CpuStorage, Tensor};
-use pbdl_core::op::apply3;
 use pbdl_core::stepper::{Differentiability, Stepper};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
-/// Physical and numerical parameters of a Navier-Stokes stepper.
+/// Physical and numerical parameters of a Navier-Stokes stepper, 2D ([`NavierStokes`]) or 3D
+/// ([`crate::grid3d::NavierStokes3d`], [`crate::grid3d::Cavity3d`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct NavierStokesConfig {
@@ -29,6 +30,32 @@ pub struct NavierStokesConfig {
     /// Runge-Kutta scheme. Default: RK4.
     #[serde(default)]
     pub scheme: Scheme,
+}
+
+impl NavierStokesConfig {
+    /// Checks the viscosity and the scheme; returns the scheme's tableau.
+    pub(crate) fn tableau(&self) -> Result<ButcherTableau> {
+        check_nu(self.nu)?;
+        let tableau = self.scheme.tableau();
+        tableau.validate()?;
+        Ok(tableau)
+    }
+
+    /// The operator list of a stepper with these parameters: advection, the viscous term when
+    /// `nu > 0`, the pressure solve, the time scheme.
+    pub(crate) fn operators(
+        &self,
+        advect: &'static str,
+        diffuse: &'static str,
+        pressure: &'static str,
+    ) -> Vec<&'static str> {
+        let mut operators = vec![advect];
+        if self.nu > 0.0 {
+            operators.push(diffuse);
+        }
+        operators.extend([pressure, self.scheme.operator_name()]);
+        operators
+    }
 }
 
 /// A built Navier-Stokes stepper.
@@ -59,28 +86,13 @@ impl NavierStokes {
     pub fn new(grid: Grid, bc: Boundaries, config: NavierStokesConfig) -> Result<Self> {
         grid.validate()?;
         bc.validate()?;
-        if !(config.nu >= 0.0 && config.nu.is_finite()) {
-            return Err(Error::Invalid {
-                field: "nu",
-                reason: format!("viscosity must be finite and >= 0, got {}", config.nu),
-            });
-        }
-        let tableau = config.scheme.tableau();
-        tableau.validate()?;
+        let tableau = config.tableau()?;
         check_time_step(&grid, [0.0, 0.0], config.nu, &tableau, config.dt)?;
         let solver = PressureSolver::new(grid, &bc)?;
         let projection = Projection::new(grid, &bc, &solver)?;
         let rhs = MomentumRhs { grid, ghosts: bc.mac_ghosts(grid.nx, grid.ny), advect: true, nu: config.nu };
-        let mut operators = vec!["advect.flux_form"];
-        if config.nu > 0.0 {
-            operators.push("diffuse.explicit");
-        }
-        operators.push(if solver.method_name() == "fft" { "pressure.fft" } else { "pressure.sparse_cholesky" });
-        operators.push(match config.scheme {
-            Scheme::Rk4 => "time_stepping.rk4",
-            Scheme::SspRk3 => "time_stepping.ssp_rk3",
-            Scheme::ForwardEuler => "time_stepping.forward_euler",
-        });
+        let pressure = if solver.method_name() == "fft" { "pressure.fft" } else { "pressure.sparse_cholesky" };
+        let operators = config.operators("advect.flux_form", "diffuse.explicit", pressure);
         Ok(Self { grid, bc, config, tableau, rhs, projection, solver, operators })
     }
 
@@ -128,14 +140,9 @@ impl NavierStokes {
     /// Same numbers as [`projected_runge_kutta`] with this stepper's operators, but each stage's
     /// linear combination is fused with its projection (fewer temporaries per step).
     pub fn step_unchecked(&self, u: &MacField) -> Result<MacField> {
-        let (u0, dt, tab) = (u.values(), self.config.dt, &self.tableau);
-        let mut k: Vec<Tensor> = Vec::with_capacity(tab.stages());
-        k.push(self.rhs.apply(u0)?);
-        for i in 1..tab.stages() {
-            let ui = self.combine_project(u0, dt, &tab.a[i], &k)?;
-            k.push(self.rhs.apply(&ui)?);
-        }
-        Ok(MacField::from_parts(self.combine_project(u0, dt, &tab.b, &k)?, self.grid, self.bc))
+        let rhs = |x: &Tensor| Ok(self.rhs.apply(x)?);
+        let out = fused_projected_runge_kutta(u.values(), self.config.dt, &self.tableau, rhs, &self.projection)?;
+        Ok(MacField::from_parts(out, self.grid, self.bc))
     }
 
     /// The same step through the generic [`projected_runge_kutta`] (unfused; for cross-checks).
@@ -148,28 +155,6 @@ impl NavierStokes {
             |x| Ok(self.projection.apply(x)?),
         )?;
         Ok(MacField::from_parts(out, self.grid, self.bc))
-    }
-
-    /// `P(u0 + dt sum_j w_j k_j)`, two terms per fused op, the projection in the last one.
-    fn combine_project(&self, u0: &Tensor, dt: f64, w: &[f64], k: &[Tensor]) -> Result<Tensor> {
-        let terms: Vec<(f64, &Tensor)> =
-            w.iter().zip(k).filter(|(w, _)| **w != 0.0).map(|(w, k)| (dt * w, k)).collect();
-        let mut acc = u0.clone();
-        let mut rest = &terms[..];
-        loop {
-            let last = rest.len() <= 2;
-            let projection = if last { Some(self.projection.clone()) } else { None };
-            let (w1, k1, w2, k2) = match rest {
-                [] => return Ok(self.projection.apply(&acc)?),
-                [(w1, k1)] => (*w1, *k1, 0.0, *k1),
-                [(w1, k1), (w2, k2), ..] => (*w1, *k1, *w2, *k2),
-            };
-            acc = apply3(&acc, k1, k2, CombineProject { w: [w1, w2], projection })?;
-            if last {
-                return Ok(acc);
-            }
-            rest = &rest[2..];
-        }
     }
 
     fn check_field(&self, u: &MacField) -> Result<()> {

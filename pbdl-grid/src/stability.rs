@@ -8,6 +8,14 @@
 use crate::time_stepping::ButcherTableau;
 use crate::{Error, Grid, Result};
 
+/// Refuses a viscosity that is negative or not finite (typed [`Error::Invalid`]).
+pub(crate) fn check_nu(nu: f64) -> Result<()> {
+    if !(nu >= 0.0 && nu.is_finite()) {
+        return Err(Error::Invalid { field: "nu", reason: format!("viscosity must be finite and >= 0, got {nu}") });
+    }
+    Ok(())
+}
+
 /// The numbers behind a stability verdict.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StabilityReport {

@@ -5,13 +5,12 @@
 
 use super::box_pressure::{BoxPressure, BoxSolver, WallProjection};
 use super::field::MacField3d;
-use super::momentum::check_nu;
 use super::stability::{check_time_step, stable_time_step};
 use super::walls::{CavityWalls, WallMomentumRhs};
 use super::{Grid3d, NavierStokes3dConfig};
 use crate::stability::StabilityReport;
-use crate::time_stepping::{projected_runge_kutta, ButcherTableau, Scheme};
-use crate::{Error, Result};
+use crate::time_stepping::{projected_runge_kutta, ButcherTableau};
+use crate::Result;
 
 /// A built 3D lid-driven-cavity stepper.
 pub struct Cavity3d {
@@ -48,22 +47,15 @@ impl Cavity3d {
     ) -> Result<Self> {
         grid.validate()?;
         walls.validate()?;
-        check_nu(config.nu)?;
-        let tableau = config.scheme.tableau();
-        tableau.validate()?;
+        let tableau = config.tableau()?;
         check_time_step(&grid, [walls.lid_velocity.abs(), 0.0, 0.0], config.nu, &tableau, config.dt)?;
         let projection = WallProjection { solver: pressure.into().build(grid)? };
         let rhs = WallMomentumRhs { grid, walls, advect: true, nu: config.nu };
-        let mut operators = vec!["grid3d.advect.flux_form_walls"];
-        if config.nu > 0.0 {
-            operators.push("grid3d.diffuse.explicit");
-        }
-        operators.push(projection.solver.operator_name());
-        operators.push(match config.scheme {
-            Scheme::Rk4 => "time_stepping.rk4",
-            Scheme::SspRk3 => "time_stepping.ssp_rk3",
-            Scheme::ForwardEuler => "time_stepping.forward_euler",
-        });
+        let operators = config.operators(
+            "grid3d.advect.flux_form_walls",
+            "grid3d.diffuse.explicit",
+            projection.solver.operator_name(),
+        );
         Ok(Self { grid, walls, config, tableau, rhs, projection, operators })
     }
 
@@ -112,12 +104,6 @@ impl Cavity3d {
     }
 
     fn check_field(&self, u: &MacField3d) -> Result<()> {
-        if u.grid() != &self.grid {
-            return Err(Error::Invalid {
-                field: "u",
-                reason: format!("the field lives on {:?}; the stepper was built for {:?}", u.grid(), self.grid),
-            });
-        }
-        Ok(())
+        u.check_stepper_grid(&self.grid)
     }
 }

@@ -41,20 +41,7 @@ impl CgBox3d {
     /// Sets up the matrix diagonal and the preconditioner for `grid`.
     pub fn new(grid: Grid3d, settings: CgSettings) -> Result<Arc<Self>> {
         grid.validate()?;
-        if !(settings.rel_tol > 0.0 && settings.rel_tol < 1.0) {
-            return Err(Error::Invalid {
-                field: "rel_tol",
-                reason: format!("{} is not in (0, 1); use e.g. 1e-8", settings.rel_tol),
-            });
-        }
-        if settings.max_iter == 0 {
-            return Err(Error::Invalid { field: "max_iter", reason: "0 iterations; use e.g. 2000".into() });
-        }
-        if let CgPreconditioner::Mic0 { tau } = settings.preconditioner {
-            if !(0.0..=1.0).contains(&tau) {
-                return Err(Error::Invalid { field: "tau", reason: format!("{tau} is not in [0, 1]; use 0.97") });
-            }
-        }
+        settings.validate("1e-8")?;
         let w = grid.spacing().map(|h| 1.0 / (h * h));
         let mut s = Self { grid, settings, w, diag: Vec::new(), inv_pivot: Vec::new() };
         let geo = s.geo();

@@ -16,6 +16,17 @@ pub struct MacField3d {
 }
 
 impl MacField3d {
+    /// Refuses a field that lives on another grid than the stepper's (`grid`).
+    pub(crate) fn check_stepper_grid(&self, grid: &Grid3d) -> Result<()> {
+        if &self.grid != grid {
+            return Err(Error::Invalid {
+                field: "u",
+                reason: format!("the field lives on {:?}; the stepper was built for {grid:?}", self.grid),
+            });
+        }
+        Ok(())
+    }
+
     /// Wraps `values` (`[batch, 3, nz, ny, nx]`, f32 or f64) after checking it against `grid`.
     pub fn new(values: Tensor, grid: Grid3d) -> Result<Self> {
         grid.validate()?;

@@ -14,7 +14,8 @@ use super::field::MacField3d;
 use super::periodic::{Periodic, E};
 use super::Grid3d;
 use crate::pad::{accumulate_rows, for_rows, PAR_CELLS};
-use crate::{Error, Result};
+use crate::stability::check_nu;
+use crate::Result;
 use candle_core::{Shape, Tensor};
 use pbdl_core::op::{apply1, apply_kernel2, Kernel1, Kernel2, Op1};
 use pbdl_core::Real;
@@ -37,13 +38,6 @@ pub fn momentum_rhs(u: &MacField3d, nu: f64) -> Result<MacField3d> {
     check_nu(nu)?;
     let op = MomentumRhs3d { grid: *u.grid(), advect: true, nu };
     Ok(MacField3d::from_parts(op.apply(u.values())?, *u.grid()))
-}
-
-pub(crate) fn check_nu(nu: f64) -> Result<()> {
-    if !(nu >= 0.0 && nu.is_finite()) {
-        return Err(Error::Invalid { field: "nu", reason: format!("viscosity must be finite and >= 0, got {nu}") });
-    }
-    Ok(())
 }
 
 /// `advect * (-div(u u)) + nu lap u` as a custom op on `[batch, 3, nz, ny, nx]`.
@@ -170,6 +164,15 @@ pub(crate) fn check_shape(op: &str, s: &Shape, g: &Grid3d) -> candle_core::Resul
     Ok(())
 }
 
+/// Shapes of an adjoint kernel: the input `a` a 3D MAC velocity on `g`, the cotangent `b` the same.
+pub(crate) fn check_adjoint_shapes(op: &str, a: &Shape, b: &Shape, g: &Grid3d) -> candle_core::Result<Shape> {
+    check_shape(op, a, g)?;
+    if a != b {
+        candle_core::bail!("{op}: cotangent {b:?} differs from input {a:?}");
+    }
+    Ok(a.clone())
+}
+
 impl Op1 for MomentumRhs3d {
     fn backward(&self, x: &Tensor, _y: &Tensor, gy: &Tensor) -> candle_core::Result<Tensor> {
         apply_kernel2(x, gy, MomentumRhs3dAdjoint(*self))
@@ -185,11 +188,7 @@ impl Kernel2 for MomentumRhs3dAdjoint {
         "grid3d_momentum_rhs_adjoint"
     }
     fn output_shape(&self, a: &Shape, b: &Shape) -> candle_core::Result<Shape> {
-        check_shape(self.name(), a, &self.0.grid)?;
-        if a != b {
-            candle_core::bail!("{}: cotangent {b:?} differs from input {a:?}", self.name());
-        }
-        Ok(a.clone())
+        check_adjoint_shapes(self.name(), a, b, &self.0.grid)
     }
     fn forward<T: Real>(&self, x: &[T], _xs: &Shape, g: &[T], _gs: &Shape, out: &mut [T]) -> candle_core::Result<()> {
         let op = self.0;

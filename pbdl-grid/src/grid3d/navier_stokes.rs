@@ -6,31 +6,21 @@
 //! [`NavierStokes3d::operators`] lists them. It is a [`pbdl_core::stepper::Stepper`].
 
 use super::field::MacField3d;
-use super::momentum::{check_nu, MomentumRhs3d};
-use super::pressure::{CombineProject3d, PoissonFft3d, Projection3d};
+use super::momentum::MomentumRhs3d;
+use super::pressure::{PoissonFft3d, Projection3d};
 use super::stability::{check_time_step, stable_time_step};
 use super::Grid3d;
 use crate::stability::StabilityReport;
-use crate::time_stepping::{projected_runge_kutta, ButcherTableau, Scheme};
+use crate::time_stepping::fused::fused_projected_runge_kutta;
+use crate::time_stepping::{projected_runge_kutta, ButcherTableau};
 use crate::{Error, Result};
 use candle_core::Tensor;
-use pbdl_core::op::apply3;
 use pbdl_core::stepper::{Differentiability, Stepper};
-use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
-/// Physical and numerical parameters of a 3D Navier-Stokes stepper.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct NavierStokes3dConfig {
-    /// Kinematic viscosity (>= 0; 0 builds an inviscid stepper without the viscous operator).
-    pub nu: f64,
-    /// Time step.
-    pub dt: f64,
-    /// Runge-Kutta scheme. Default: RK4.
-    #[serde(default)]
-    pub scheme: Scheme,
-}
+/// Physical and numerical parameters of a 3D Navier-Stokes stepper: the 2D
+/// [`crate::NavierStokesConfig`] (viscosity, time step, scheme).
+pub type NavierStokes3dConfig = crate::NavierStokesConfig;
 
 /// A built 3D Navier-Stokes stepper (periodic box).
 pub struct NavierStokes3d {
@@ -57,22 +47,11 @@ impl NavierStokes3d {
     /// and plans the FFTs.
     pub fn new(grid: Grid3d, config: NavierStokes3dConfig) -> Result<Self> {
         grid.validate()?;
-        check_nu(config.nu)?;
-        let tableau = config.scheme.tableau();
-        tableau.validate()?;
+        let tableau = config.tableau()?;
         check_time_step(&grid, [0.0; 3], config.nu, &tableau, config.dt)?;
         let projection = Projection3d { solver: PoissonFft3d::new(grid)? };
         let rhs = MomentumRhs3d { grid, advect: true, nu: config.nu };
-        let mut operators = vec!["grid3d.advect.flux_form"];
-        if config.nu > 0.0 {
-            operators.push("grid3d.diffuse.explicit");
-        }
-        operators.push("grid3d.pressure.fft");
-        operators.push(match config.scheme {
-            Scheme::Rk4 => "time_stepping.rk4",
-            Scheme::SspRk3 => "time_stepping.ssp_rk3",
-            Scheme::ForwardEuler => "time_stepping.forward_euler",
-        });
+        let operators = config.operators("grid3d.advect.flux_form", "grid3d.diffuse.explicit", "grid3d.pressure.fft");
         Ok(Self { grid, config, tableau, rhs, projection, operators })
     }
 
@@ -129,14 +108,9 @@ impl NavierStokes3d {
     /// One time step without the stability check. Each stage's linear combination is fused with
     /// its projection; the numbers equal [`Self::step_reference`]'s to round-off.
     pub fn step_unchecked(&self, u: &MacField3d) -> Result<MacField3d> {
-        let (u0, dt, tab) = (u.values(), self.config.dt, &self.tableau);
-        let mut k: Vec<Tensor> = Vec::with_capacity(tab.stages());
-        k.push(self.rhs.apply(u0)?);
-        for i in 1..tab.stages() {
-            let ui = self.combine_project(u0, dt, &tab.a[i], &k)?;
-            k.push(self.rhs.apply(&ui)?);
-        }
-        Ok(MacField3d::from_parts(self.combine_project(u0, dt, &tab.b, &k)?, self.grid))
+        let rhs = |x: &Tensor| Ok(self.rhs.apply(x)?);
+        let out = fused_projected_runge_kutta(u.values(), self.config.dt, &self.tableau, rhs, &self.projection)?;
+        Ok(MacField3d::from_parts(out, self.grid))
     }
 
     /// The same step through the generic [`projected_runge_kutta`] (unfused; for cross-checks).
@@ -152,36 +126,8 @@ impl NavierStokes3d {
         Ok(MacField3d::from_parts(out, self.grid))
     }
 
-    /// `P(u0 + dt sum_j w_j k_j)`, two terms per fused op, the projection in the last one.
-    fn combine_project(&self, u0: &Tensor, dt: f64, w: &[f64], k: &[Tensor]) -> Result<Tensor> {
-        let terms: Vec<(f64, &Tensor)> =
-            w.iter().zip(k).filter(|(w, _)| **w != 0.0).map(|(w, k)| (dt * w, k)).collect();
-        let mut acc = u0.clone();
-        let mut rest = &terms[..];
-        loop {
-            let last = rest.len() <= 2;
-            let projection = if last { Some(self.projection.clone()) } else { None };
-            let (w1, k1, w2, k2) = match rest {
-                [] => return Ok(self.projection.apply(&acc)?),
-                [(w1, k1)] => (*w1, *k1, 0.0, *k1),
-                [(w1, k1), (w2, k2), ..] => (*w1, *k1, *w2, *k2),
-            };
-            acc = apply3(&acc, k1, k2, CombineProject3d { w: [w1, w2], projection })?;
-            if last {
-                return Ok(acc);
-            }
-            rest = &rest[2..];
-        }
-    }
-
     fn check_field(&self, u: &MacField3d) -> Result<()> {
-        if u.grid() != &self.grid {
-            return Err(Error::Invalid {
-                field: "u",
-                reason: format!("the field lives on {:?}; the stepper was built for {:?}", u.grid(), self.grid),
-            });
-        }
-        Ok(())
+        u.check_stepper_grid(&self.grid)
     }
 }
 

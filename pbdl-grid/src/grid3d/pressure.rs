@@ -10,12 +10,12 @@ use super::field::{check_values, MacField3d};
 use super::momentum::check_shape;
 use super::periodic::{self, inv_spacing, Periodic};
 use super::Grid3d;
+use crate::float::with_concrete;
 use crate::scratch::zeros;
 use crate::{Error, Result};
 use candle_core::{Shape, Tensor};
-use pbdl_core::op::{apply1, Kernel1, Kernel3, Op1, Op3};
+use pbdl_core::op::{apply1, Kernel1, Op1};
 use pbdl_core::Real;
-use std::any::TypeId;
 use std::sync::Arc;
 
 /// A planned periodic Poisson solver (f32 and f64 plans) for one [`Grid3d`]; build once, share.
@@ -45,17 +45,7 @@ impl PoissonFft3d {
 
     /// `out = L^+ rhs` for one `nz x ny x nx` slice, in the slice's float type.
     pub(crate) fn solve_slice<T: Real>(&self, rhs: &[T], out: &mut [T]) {
-        if TypeId::of::<T>() == TypeId::of::<f32>() {
-            // SAFETY: T is f32 (checked by TypeId): same size and layout.
-            let (r, o) = unsafe { (cast::<T, f32>(rhs), cast_mut::<T, f32>(out)) };
-            self.f32.solve(r, o);
-        } else if TypeId::of::<T>() == TypeId::of::<f64>() {
-            // SAFETY: T is f64 (checked by TypeId).
-            let (r, o) = unsafe { (cast::<T, f64>(rhs), cast_mut::<T, f64>(out)) };
-            self.f64.solve(r, o);
-        } else {
-            unreachable!("Real is implemented for f32 and f64 only");
-        }
+        with_concrete(rhs, out, |r, o| self.f32.solve(r, o), |r, o| self.f64.solve(r, o));
     }
 
     fn check(&self, grid: &Grid3d) -> Result<()> {
@@ -70,20 +60,6 @@ impl PoissonFft3d {
         }
         Ok(())
     }
-}
-
-/// Reinterprets a slice of `T` as `U`. Caller guarantees `T == U`.
-unsafe fn cast<T: 'static, U: 'static>(x: &[T]) -> &[U] {
-    debug_assert_eq!(TypeId::of::<T>(), TypeId::of::<U>());
-    // SAFETY: the caller guarantees T and U are the same type.
-    unsafe { std::slice::from_raw_parts(x.as_ptr() as *const U, x.len()) }
-}
-
-/// Mutable variant of [`cast`].
-unsafe fn cast_mut<T: 'static, U: 'static>(x: &mut [T]) -> &mut [U] {
-    debug_assert_eq!(TypeId::of::<T>(), TypeId::of::<U>());
-    // SAFETY: the caller guarantees T and U are the same type.
-    unsafe { std::slice::from_raw_parts_mut(x.as_mut_ptr() as *mut U, x.len()) }
 }
 
 /// Projects `u` onto discretely divergence-free fields (`D P u = 0` to round-off). Differentiable:
@@ -179,65 +155,11 @@ impl Op1 for Projection3d {
     }
 }
 
-/// `P(a + w1 b + w2 c)` (or without `P`) in one op: a Runge-Kutta stage update and its
-/// projection without intermediate tensors. Backward: `h = P g`, gradients `(h, w1 h, w2 h)`.
-#[derive(Clone)]
-pub(crate) struct CombineProject3d {
-    pub w: [f64; 2],
-    pub projection: Option<Projection3d>,
-}
+impl crate::time_stepping::fused::ProjectionKernel for Projection3d {
+    const COMBINE_NAME: &'static str = "grid3d_combine_project";
 
-impl Kernel3 for CombineProject3d {
-    fn name(&self) -> &'static str {
-        "grid3d_combine_project"
-    }
-    fn output_shape(&self, a: &Shape, b: &Shape, c: &Shape) -> candle_core::Result<Shape> {
-        if a != b || a != c {
-            candle_core::bail!("{}: shapes differ: {a:?} {b:?} {c:?}", self.name());
-        }
-        Ok(a.clone())
-    }
-    fn forward<T: Real>(
-        &self,
-        a: &[T],
-        s: &Shape,
-        b: &[T],
-        _bs: &Shape,
-        c: &[T],
-        _cs: &Shape,
-        out: &mut [T],
-    ) -> candle_core::Result<()> {
-        let (w1, w2) = (T::c(self.w[0]), T::c(self.w[1]));
-        let comb = |o: &mut [T]| {
-            for ((o, &x), (&y, &z)) in o.iter_mut().zip(a).zip(b.iter().zip(c)) {
-                *o = x + w1 * y + w2 * z;
-            }
-        };
-        match &self.projection {
-            None => comb(out),
-            Some(p) => {
-                let mut tmp = zeros::<T>(a.len());
-                comb(&mut tmp);
-                p.forward(&tmp, s, out)?;
-            }
-        }
-        Ok(())
-    }
-}
-
-impl Op3 for CombineProject3d {
-    fn backward(
-        &self,
-        _a: &Tensor,
-        _b: &Tensor,
-        _c: &Tensor,
-        _y: &Tensor,
-        gy: &Tensor,
-    ) -> candle_core::Result<(Tensor, Tensor, Tensor)> {
-        let h = match &self.projection {
-            Some(p) => p.apply(gy)?,
-            None => gy.clone(),
-        };
-        Ok((h.clone(), h.affine(self.w[0], 0.0)?, h.affine(self.w[1], 0.0)?))
+    /// `P` is symmetric: its adjoint is itself.
+    fn adjoint(&self, g: &Tensor) -> candle_core::Result<Tensor> {
+        self.apply(g)
     }
 }

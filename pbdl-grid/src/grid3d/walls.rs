@@ -12,9 +12,10 @@
 //! two axes at once, so corners never need a rule. Tendencies on the wall faces are 0.
 
 use super::field::MacField3d;
-use super::momentum::{check_nu, check_shape};
+use super::momentum::{check_adjoint_shapes, check_shape};
 use super::Grid3d;
 use crate::pad::{accumulate_rows, for_rows, PAR_CELLS};
+use crate::stability::check_nu;
 use crate::{Error, Result};
 use candle_core::{Shape, Tensor};
 use pbdl_core::op::{apply1, apply_kernel2, Kernel1, Kernel2, Op1};
@@ -237,11 +238,7 @@ impl Kernel2 for WallMomentumRhsAdjoint {
         "grid3d_momentum_rhs_walls_adjoint"
     }
     fn output_shape(&self, a: &Shape, b: &Shape) -> candle_core::Result<Shape> {
-        check_shape(self.name(), a, &self.0.grid)?;
-        if a != b {
-            candle_core::bail!("{}: cotangent {b:?} differs from input {a:?}", self.name());
-        }
-        Ok(a.clone())
+        check_adjoint_shapes(self.name(), a, b, &self.0.grid)
     }
     fn forward<T: Real>(&self, x: &[T], _xs: &Shape, g: &[T], _gs: &Shape, out: &mut [T]) -> candle_core::Result<()> {
         let op = self.0;

@@ -16,6 +16,7 @@
 //! `A` is symmetric, so the adjoint of a solve is the same solve: the gradient of the CG-based
 //! projection [`make_incompressible_masked_cg`] is one more CG solve, never unrolled iterations.
 
+use super::masked::check_mac_shape;
 use super::project::set_fixed;
 use crate::boundary::{Boundaries, Ghosts, MacGhosts};
 use crate::fd::{div_padded, div_padded_adjoint, grad_padded, grad_padded_adjoint};
@@ -60,6 +61,27 @@ impl Default for CgSettings {
     /// `rel_tol = 1e-6`, `max_iter = 2000`, MIC(0) with `tau = 0.97`.
     fn default() -> Self {
         Self { rel_tol: 1e-6, max_iter: 2000, preconditioner: CgPreconditioner::Mic0 { tau: 0.97 } }
+    }
+}
+
+impl CgSettings {
+    /// Checks the settings (2D and 3D solvers); `suggested_tol` goes into the `rel_tol` message.
+    pub(crate) fn validate(&self, suggested_tol: &str) -> Result<()> {
+        if !(self.rel_tol > 0.0 && self.rel_tol < 1.0) {
+            return Err(Error::Invalid {
+                field: "rel_tol",
+                reason: format!("{} is not in (0, 1); use e.g. {suggested_tol}", self.rel_tol),
+            });
+        }
+        if self.max_iter == 0 {
+            return Err(Error::Invalid { field: "max_iter", reason: "0 iterations; use e.g. 2000".into() });
+        }
+        if let CgPreconditioner::Mic0 { tau } = self.preconditioner {
+            if !(0.0..=1.0).contains(&tau) {
+                return Err(Error::Invalid { field: "tau", reason: format!("{tau} is not in [0, 1]; use 0.97") });
+            }
+        }
+        Ok(())
     }
 }
 
@@ -111,20 +133,7 @@ impl CgPressureSolver {
         if mask.grid() != &grid {
             return Err(Error::Invalid { field: "obstacles", reason: "the mask was built for another grid".into() });
         }
-        if !(settings.rel_tol > 0.0 && settings.rel_tol < 1.0) {
-            return Err(Error::Invalid {
-                field: "rel_tol",
-                reason: format!("{} is not in (0, 1); use e.g. 1e-6", settings.rel_tol),
-            });
-        }
-        if settings.max_iter == 0 {
-            return Err(Error::Invalid { field: "max_iter", reason: "0 iterations; use e.g. 2000".into() });
-        }
-        if let CgPreconditioner::Mic0 { tau } = settings.preconditioner {
-            if !(0.0..=1.0).contains(&tau) {
-                return Err(Error::Invalid { field: "tau", reason: format!("{tau} is not in [0, 1]; use 0.97") });
-            }
-        }
+        settings.validate("1e-6")?;
         let (nx, ny) = (grid.nx, grid.ny);
         let pbc = bc.pressure();
         let g = pbc.ghosts(nx, ny);
@@ -485,11 +494,7 @@ impl Kernel1 for CgProjection {
         "make_incompressible_masked_cg"
     }
     fn output_shape(&self, s: &Shape) -> candle_core::Result<Shape> {
-        let (_, c, ny, nx) = s.dims4()?;
-        if (c, ny, nx) != (2, self.0.grid.ny, self.0.grid.nx) {
-            candle_core::bail!("make_incompressible_masked_cg: {s:?} is not a MAC velocity on the solver's grid");
-        }
-        Ok(s.clone())
+        check_mac_shape(self.name(), s, &self.0.grid)
     }
     fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
         let s = &*self.0;

@@ -7,14 +7,11 @@
 //! cells (`L_m = D m G` there, symmetric). Its vector-Jacobian product is
 //! `F m (g - D^T L_m^+ G^T (m g))`: one adjoint solve with the same factor.
 
-use super::project::set_fixed;
+use super::project::Faces;
 use crate::boundary::{Boundaries, Ghosts, MacGhosts};
-use crate::fd::{div_padded, div_padded_adjoint, grad_padded, grad_padded_adjoint};
 use crate::field::MacField;
 use crate::laplacian_matrix::{unknown_index, Excluded, Factored, Laplacian, NOT_UNKNOWN};
 use crate::obstacle::ObstacleMask;
-use crate::pad::{pad, pad_adjoint};
-use crate::scratch::zeros;
 use crate::{Error, Grid, Result};
 use candle_core::{Shape, Tensor};
 use pbdl_core::op::{apply1, apply_kernel1, Kernel1, Op1};
@@ -102,18 +99,8 @@ impl MaskedPressureSolver {
         }
     }
 
-    fn fixed(&self) -> (bool, bool) {
-        (self.mac.u_fixed.is_some(), self.mac.v_fixed.is_some())
-    }
-
-    /// Multiplies a `[2, ny, nx]` slice by the open-face masks.
-    fn mask<T: Real>(&self, x: &mut [T]) {
-        let (xu, xv) = x.split_at_mut(self.grid.cells());
-        for (e, &m) in xu.iter_mut().zip(&self.mu).chain(xv.iter_mut().zip(&self.mv)) {
-            if m == 0.0 {
-                *e = T::zero();
-            }
-        }
+    fn faces(&self) -> Faces<'_> {
+        Faces { grid: &self.grid, mac: &self.mac, p: &self.p, open: Some((&self.mu, &self.mv)) }
     }
 }
 
@@ -128,6 +115,15 @@ pub fn make_incompressible_masked(u: &MacField, solver: &Arc<MaskedPressureSolve
         });
     }
     Ok(MacField::from_parts(MaskedProjection(solver.clone()).apply(u.values())?, *u.grid(), *u.bc()))
+}
+
+/// `s` if it is a MAC velocity shape `[batch, 2, ny, nx]` on `grid`, else an error naming `op`.
+pub(crate) fn check_mac_shape(op: &str, s: &Shape, grid: &Grid) -> candle_core::Result<Shape> {
+    let (_, c, ny, nx) = s.dims4()?;
+    if (c, ny, nx) != (2, grid.ny, grid.nx) {
+        candle_core::bail!("{op}: {s:?} is not a MAC velocity on the solver's grid");
+    }
+    Ok(s.clone())
 }
 
 /// The masked projection as a custom op.
@@ -145,35 +141,11 @@ impl Kernel1 for MaskedProjection {
         "make_incompressible_masked"
     }
     fn output_shape(&self, s: &Shape) -> candle_core::Result<Shape> {
-        let (_, c, ny, nx) = s.dims4()?;
-        if (c, ny, nx) != (2, self.0.grid.ny, self.0.grid.nx) {
-            candle_core::bail!("make_incompressible_masked: {s:?} is not a MAC velocity on the solver's grid");
-        }
-        Ok(s.clone())
+        check_mac_shape(self.name(), s, &self.0.grid)
     }
     fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
         let s = &*self.0;
-        let (nx, ny) = (s.grid.nx, s.grid.ny);
-        let (n, pn) = (nx * ny, (nx + 2) * (ny + 2));
-        let (idx, idy) = (T::c(1.0 / s.grid.dx()), T::c(1.0 / s.grid.dy()));
-        let (mut a, mut b, mut c) = (zeros::<T>(pn), zeros::<T>(pn), zeros::<T>(pn));
-        let (mut div, mut p, mut g) = (zeros::<T>(n), zeros::<T>(n), zeros::<T>(2 * n));
-        for (xb, ob) in x.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
-            ob.copy_from_slice(xb);
-            set_fixed(ob, nx, ny, s.mac.u_fixed.map(T::c), s.mac.v_fixed.map(T::c));
-            s.mask(ob);
-            pad(&ob[..n], nx, ny, &s.mac.u, true, &mut a);
-            pad(&ob[n..], nx, ny, &s.mac.v, true, &mut b);
-            div_padded(&a, &b, nx, ny, idx, idy, &mut div);
-            s.solve_slice(&div, &mut p);
-            pad(&p, nx, ny, &s.p, true, &mut c);
-            let (gu, gv) = g.split_at_mut(n);
-            grad_padded(&c, nx, ny, idx, idy, s.fixed(), gu, gv);
-            s.mask(&mut g);
-            for (o, &gg) in ob.iter_mut().zip(g.iter()) {
-                *o -= gg;
-            }
-        }
+        s.faces().forward(x, out, |r, o| s.solve_slice(r, o));
         Ok(())
     }
 }
@@ -195,31 +167,7 @@ impl Kernel1 for MaskedProjectionAdjoint {
     }
     fn forward<T: Real>(&self, g: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
         let s = &*self.0 .0;
-        let (nx, ny) = (s.grid.nx, s.grid.ny);
-        let (n, pn) = (nx * ny, (nx + 2) * (ny + 2));
-        let (idx, idy) = (T::c(1.0 / s.grid.dx()), T::c(1.0 / s.grid.dy()));
-        let (mut a, mut b, mut c) = (zeros::<T>(pn), zeros::<T>(pn), zeros::<T>(pn));
-        let (mut d, mut p, mut h) = (zeros::<T>(n), zeros::<T>(n), zeros::<T>(2 * n));
-        for (gb, ob) in g.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
-            h.copy_from_slice(gb);
-            s.mask(&mut h);
-            c.fill(T::zero());
-            grad_padded_adjoint(&h[..n], &h[n..], nx, ny, idx, idy, s.fixed(), &mut c);
-            pad_adjoint(&mut c, nx, ny, &s.p, &mut d);
-            s.solve_slice(&d, &mut p);
-            a.fill(T::zero());
-            b.fill(T::zero());
-            div_padded_adjoint(&p, nx, ny, idx, idy, &mut a, &mut b);
-            let (ou, ov) = ob.split_at_mut(n);
-            pad_adjoint(&mut a, nx, ny, &s.mac.u, ou);
-            pad_adjoint(&mut b, nx, ny, &s.mac.v, ov);
-            for (o, &gv) in ob.iter_mut().zip(gb) {
-                *o = gv - *o;
-            }
-            s.mask(ob);
-            let z = Some(T::zero());
-            set_fixed(ob, nx, ny, s.mac.u_fixed.and(z), s.mac.v_fixed.and(z));
-        }
+        s.faces().adjoint(g, out, |r, o| s.solve_slice(r, o));
         Ok(())
     }
 }

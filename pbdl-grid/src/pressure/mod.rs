@@ -29,5 +29,5 @@ pub use cg::{make_incompressible_masked_cg, CgPreconditioner, CgPressureSolver, 
 pub(crate) use masked::MaskedProjection;
 pub use masked::{make_incompressible_masked, MaskedPressureSolver};
 pub use project::make_incompressible;
-pub(crate) use project::{CombineProject, Projection};
+pub(crate) use project::Projection;
 pub use solver::{solve_poisson, PressureSolver};

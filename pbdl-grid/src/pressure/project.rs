@@ -5,7 +5,7 @@ use crate::boundary::{Ghosts, MacGhosts};
 use crate::fd::{div_padded, div_padded_adjoint, grad_padded, grad_padded_adjoint};
 use crate::field::MacField;
 use crate::pad::{pad, pad_adjoint};
-use crate::scratch::{uninit, zeros, Buf};
+use crate::scratch::{zeros, Buf};
 use crate::{Error, Grid, Result};
 use candle_core::{Shape, Tensor};
 use pbdl_core::op::{apply1, apply_kernel1, Kernel1, Op1};
@@ -49,8 +49,8 @@ impl Projection {
         apply1(u, self.clone())
     }
 
-    fn fixed(&self) -> (bool, bool) {
-        (self.mac.u_fixed.is_some(), self.mac.v_fixed.is_some())
+    fn faces(&self) -> Faces<'_> {
+        Faces { grid: &self.grid, mac: &self.mac, p: &self.p, open: None }
     }
 }
 
@@ -79,24 +79,7 @@ impl Kernel1 for Projection {
         Ok(s.clone())
     }
     fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
-        let (nx, ny) = (self.grid.nx, self.grid.ny);
-        let n = nx * ny;
-        let (idx, idy) = (T::c(1.0 / self.grid.dx()), T::c(1.0 / self.grid.dy()));
-        let mut s = Scratch::<T>::new(nx, ny);
-        for (xb, ob) in x.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
-            ob.copy_from_slice(xb);
-            set_fixed(ob, nx, ny, self.mac.u_fixed.map(T::c), self.mac.v_fixed.map(T::c));
-            pad(&ob[..n], nx, ny, &self.mac.u, true, &mut s.a);
-            pad(&ob[n..], nx, ny, &self.mac.v, true, &mut s.b);
-            div_padded(&s.a, &s.b, nx, ny, idx, idy, &mut s.div);
-            self.solver.solve_slice(&s.div, &mut s.p);
-            pad(&s.p, nx, ny, &self.p, true, &mut s.c);
-            let (gu, gv) = s.g.split_at_mut(n);
-            grad_padded(&s.c, nx, ny, idx, idy, self.fixed(), gu, gv);
-            for (o, &g) in ob.iter_mut().zip(s.g.iter()) {
-                *o -= g;
-            }
-        }
+        self.faces().forward(x, out, |r, o| self.solver.solve_slice(r, o));
         Ok(())
     }
 }
@@ -121,6 +104,85 @@ pub(crate) fn set_fixed<T: Real>(x: &mut [T], nx: usize, ny: usize, u: Option<T>
     }
 }
 
+/// What the 2D projection kernels (plain and with obstacles) share: the grid, the ghost rules,
+/// and with obstacles the open-face masks `m` of `u` and `v`.
+pub(crate) struct Faces<'a> {
+    pub grid: &'a Grid,
+    pub mac: &'a MacGhosts,
+    pub p: &'a Ghosts,
+    pub open: Option<(&'a [f64], &'a [f64])>,
+}
+
+impl Faces<'_> {
+    fn fixed(&self) -> (bool, bool) {
+        (self.mac.u_fixed.is_some(), self.mac.v_fixed.is_some())
+    }
+
+    /// Zeroes the closed faces of a `[2, ny, nx]` slice (nothing without obstacles).
+    fn mask<T: Real>(&self, x: &mut [T]) {
+        if let Some((mu, mv)) = self.open {
+            let (xu, xv) = x.split_at_mut(self.grid.cells());
+            for (e, &m) in xu.iter_mut().zip(mu).chain(xv.iter_mut().zip(mv)) {
+                if m == 0.0 {
+                    *e = T::zero();
+                }
+            }
+        }
+    }
+
+    /// `out = w - m G p`, `w = m F x`, `p = solve(D w)`, per `[2, ny, nx]` sample.
+    pub(crate) fn forward<T: Real>(&self, x: &[T], out: &mut [T], solve: impl Fn(&[T], &mut [T])) {
+        let (nx, ny) = (self.grid.nx, self.grid.ny);
+        let n = nx * ny;
+        let (idx, idy) = (T::c(1.0 / self.grid.dx()), T::c(1.0 / self.grid.dy()));
+        let mut s = Scratch::<T>::new(nx, ny);
+        for (xb, ob) in x.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
+            ob.copy_from_slice(xb);
+            set_fixed(ob, nx, ny, self.mac.u_fixed.map(T::c), self.mac.v_fixed.map(T::c));
+            self.mask(ob);
+            pad(&ob[..n], nx, ny, &self.mac.u, true, &mut s.a);
+            pad(&ob[n..], nx, ny, &self.mac.v, true, &mut s.b);
+            div_padded(&s.a, &s.b, nx, ny, idx, idy, &mut s.div);
+            solve(&s.div, &mut s.p);
+            pad(&s.p, nx, ny, self.p, true, &mut s.c);
+            let (gu, gv) = s.g.split_at_mut(n);
+            grad_padded(&s.c, nx, ny, idx, idy, self.fixed(), gu, gv);
+            self.mask(&mut s.g);
+            for (o, &g) in ob.iter_mut().zip(s.g.iter()) {
+                *o -= g;
+            }
+        }
+    }
+
+    /// The vector-Jacobian product of [`Self::forward`]: `F m (g - D^T solve(G^T (m g)))`.
+    pub(crate) fn adjoint<T: Real>(&self, g: &[T], out: &mut [T], solve: impl Fn(&[T], &mut [T])) {
+        let (nx, ny) = (self.grid.nx, self.grid.ny);
+        let n = nx * ny;
+        let (idx, idy) = (T::c(1.0 / self.grid.dx()), T::c(1.0 / self.grid.dy()));
+        let mut s = Scratch::<T>::new(nx, ny);
+        for (gb, ob) in g.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
+            s.g.copy_from_slice(gb);
+            self.mask(&mut s.g);
+            s.c.iter_mut().for_each(|x| *x = T::zero());
+            grad_padded_adjoint(&s.g[..n], &s.g[n..], nx, ny, idx, idy, self.fixed(), &mut s.c);
+            pad_adjoint(&mut s.c, nx, ny, self.p, &mut s.div);
+            solve(&s.div, &mut s.p);
+            s.a.iter_mut().chain(s.b.iter_mut()).for_each(|x| *x = T::zero());
+            div_padded_adjoint(&s.p, nx, ny, idx, idy, &mut s.a, &mut s.b);
+            let (ou, ov) = ob.split_at_mut(n);
+            pad_adjoint(&mut s.a, nx, ny, &self.mac.u, ou);
+            pad_adjoint(&mut s.b, nx, ny, &self.mac.v, ov);
+            for (o, &gv) in ob.iter_mut().zip(gb) {
+                *o = gv - *o;
+            }
+            self.mask(ob);
+            // Fixed faces were overwritten by constants: no gradient reaches their inputs.
+            let z = Some(T::zero());
+            set_fixed(ob, nx, ny, self.mac.u_fixed.and(z), self.mac.v_fixed.and(z));
+        }
+    }
+}
+
 /// `E^T (g - D^T L^+ (M G)^T g)`, `E` the overwrite of the fixed faces.
 struct ProjectionAdjoint(Projection);
 
@@ -133,91 +195,15 @@ impl Kernel1 for ProjectionAdjoint {
     }
     fn forward<T: Real>(&self, g: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
         let op = &self.0;
-        let (nx, ny) = (op.grid.nx, op.grid.ny);
-        let n = nx * ny;
-        let (idx, idy) = (T::c(1.0 / op.grid.dx()), T::c(1.0 / op.grid.dy()));
-        let mut s = Scratch::<T>::new(nx, ny);
-        for (gb, ob) in g.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
-            s.c.iter_mut().for_each(|x| *x = T::zero());
-            grad_padded_adjoint(&gb[..n], &gb[n..], nx, ny, idx, idy, op.fixed(), &mut s.c);
-            pad_adjoint(&mut s.c, nx, ny, &op.p, &mut s.div);
-            op.solver.solve_slice(&s.div, &mut s.p);
-            s.a.iter_mut().chain(s.b.iter_mut()).for_each(|x| *x = T::zero());
-            div_padded_adjoint(&s.p, nx, ny, idx, idy, &mut s.a, &mut s.b);
-            let (ou, ov) = ob.split_at_mut(n);
-            pad_adjoint(&mut s.a, nx, ny, &op.mac.u, ou);
-            pad_adjoint(&mut s.b, nx, ny, &op.mac.v, ov);
-            for (o, &gv) in ob.iter_mut().zip(gb) {
-                *o = gv - *o;
-            }
-            // Fixed faces were overwritten by constants: no gradient reaches their inputs.
-            let z = Some(T::zero());
-            set_fixed(ob, nx, ny, op.mac.u_fixed.and(z), op.mac.v_fixed.and(z));
-        }
+        op.faces().adjoint(g, out, |r, o| op.solver.solve_slice(r, o));
         Ok(())
     }
 }
 
-/// `P(x0 + w1 x1 + w2 x2)` (or without `P`) in one op: a Runge-Kutta stage update and its
-/// projection without intermediate tensors. Backward: `h = P^T g`, gradients `(h, w1 h, w2 h)`.
-#[derive(Clone)]
-pub(crate) struct CombineProject {
-    pub w: [f64; 2],
-    pub projection: Option<Projection>,
-}
+impl crate::time_stepping::fused::ProjectionKernel for Projection {
+    const COMBINE_NAME: &'static str = "combine_project";
 
-impl pbdl_core::op::Kernel3 for CombineProject {
-    fn name(&self) -> &'static str {
-        "combine_project"
-    }
-    fn output_shape(&self, a: &Shape, b: &Shape, c: &Shape) -> candle_core::Result<Shape> {
-        if a != b || a != c {
-            candle_core::bail!("combine_project: shapes differ: {a:?} {b:?} {c:?}");
-        }
-        Ok(a.clone())
-    }
-    fn forward<T: Real>(
-        &self,
-        a: &[T],
-        s: &Shape,
-        b: &[T],
-        _bs: &Shape,
-        c: &[T],
-        _cs: &Shape,
-        out: &mut [T],
-    ) -> candle_core::Result<()> {
-        let (w1, w2) = (T::c(self.w[0]), T::c(self.w[1]));
-        match &self.projection {
-            None => {
-                for ((o, &x), (&y, &z)) in out.iter_mut().zip(a).zip(b.iter().zip(c)) {
-                    *o = x + w1 * y + w2 * z;
-                }
-                Ok(())
-            }
-            Some(p) => {
-                let mut comb = uninit::<T>(a.len());
-                for ((o, &x), (&y, &z)) in comb.iter_mut().zip(a).zip(b.iter().zip(c)) {
-                    *o = x + w1 * y + w2 * z;
-                }
-                p.forward(&comb, s, out)
-            }
-        }
-    }
-}
-
-impl pbdl_core::op::Op3 for CombineProject {
-    fn backward(
-        &self,
-        _a: &Tensor,
-        _b: &Tensor,
-        _c: &Tensor,
-        _y: &Tensor,
-        gy: &Tensor,
-    ) -> candle_core::Result<(Tensor, Tensor, Tensor)> {
-        let h = match &self.projection {
-            Some(p) => apply_kernel1(gy, ProjectionAdjoint(p.clone()))?,
-            None => gy.clone(),
-        };
-        Ok((h.clone(), h.affine(self.w[0], 0.0)?, h.affine(self.w[1], 0.0)?))
+    fn adjoint(&self, g: &Tensor) -> candle_core::Result<Tensor> {
+        apply_kernel1(g, ProjectionAdjoint(self.clone()))
     }
 }

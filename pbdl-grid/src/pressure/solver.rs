@@ -5,11 +5,11 @@ use super::fft::FftPoisson;
 use crate::boundary::{Boundaries, ScalarBoundaries};
 use crate::fd::dims4;
 use crate::field::CenteredField;
+use crate::float::with_concrete;
 use crate::{Error, Grid, Result};
 use candle_core::{Shape, Tensor};
 use pbdl_core::op::{apply1, apply_kernel1, Kernel1, Op1};
 use pbdl_core::Real;
-use std::any::TypeId;
 use std::sync::Arc;
 
 enum Method {
@@ -82,19 +82,7 @@ impl PressureSolver {
     /// `out = L^+ rhs` for one `ny x nx` slice.
     pub(crate) fn solve_slice<T: Real>(&self, rhs: &[T], out: &mut [T]) {
         match &self.method {
-            Method::Fft { f32, f64 } => {
-                if TypeId::of::<T>() == TypeId::of::<f32>() {
-                    // SAFETY: T is f32 (checked by TypeId), same size and layout.
-                    let (r, o) = unsafe { (cast::<T, f32>(rhs), cast_mut::<T, f32>(out)) };
-                    f32.solve(r, o);
-                } else if TypeId::of::<T>() == TypeId::of::<f64>() {
-                    // SAFETY: T is f64 (checked by TypeId).
-                    let (r, o) = unsafe { (cast::<T, f64>(rhs), cast_mut::<T, f64>(out)) };
-                    f64.solve(r, o);
-                } else {
-                    unreachable!("Real is implemented for f32 and f64 only");
-                }
-            }
+            Method::Fft { f32, f64 } => with_concrete(rhs, out, |r, o| f32.solve(r, o), |r, o| f64.solve(r, o)),
             Method::Cholesky(c) => {
                 let mut b: Vec<f64> = rhs.iter().map(|&x| <T as candle_core::WithDType>::to_f64(x)).collect();
                 c.solve(&mut b);
@@ -104,20 +92,6 @@ impl PressureSolver {
             }
         }
     }
-}
-
-/// Reinterprets a slice of `T` as `U`. Caller guarantees `T == U`.
-unsafe fn cast<T: 'static, U: 'static>(x: &[T]) -> &[U] {
-    debug_assert_eq!(TypeId::of::<T>(), TypeId::of::<U>());
-    // SAFETY: the caller guarantees T and U are the same type.
-    unsafe { std::slice::from_raw_parts(x.as_ptr() as *const U, x.len()) }
-}
-
-/// Mutable variant of [`cast`].
-unsafe fn cast_mut<T: 'static, U: 'static>(x: &mut [T]) -> &mut [U] {
-    debug_assert_eq!(TypeId::of::<T>(), TypeId::of::<U>());
-    // SAFETY: the caller guarantees T and U are the same type.
-    unsafe { std::slice::from_raw_parts_mut(x.as_mut_ptr() as *mut U, x.len()) }
 }
 
 /// `L^+ b` for every channel of `b`, differentiable: the adjoint of the solve is the same solve

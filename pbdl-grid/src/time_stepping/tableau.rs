@@ -40,6 +40,19 @@ impl Scheme {
             Scheme::ForwardEuler => ButcherTableau::forward_euler(),
         }
     }
+
+    /// The operator name a stepper lists for the scheme, e.g. `"time_stepping.rk4"`.
+    ///
+    /// ```
+    /// assert_eq!(pbdl_grid::Scheme::SspRk3.operator_name(), "time_stepping.ssp_rk3");
+    /// ```
+    pub fn operator_name(self) -> &'static str {
+        match self {
+            Scheme::Rk4 => "time_stepping.rk4",
+            Scheme::SspRk3 => "time_stepping.ssp_rk3",
+            Scheme::ForwardEuler => "time_stepping.forward_euler",
+        }
+    }
 }
 
 impl ButcherTableau {
