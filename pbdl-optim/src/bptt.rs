@@ -180,11 +180,83 @@ impl TrainSchedule {
     }
 }
 
-/// Implements `schedule()` for an experiment's config struct that has the six fields of
-/// [`TrainSchedule`] (`mode`, `clip`, `lr`, `batch`, `iterations`, `eval_every`).
-macro_rules! impl_schedule {
-    ($config:ty) => {
-        impl $config {
+/// Declares an experiment's config struct and its paper-settings constructor.
+///
+/// The struct has the experiment's own leading fields as written, then the shared ones in this
+/// order: `mode`, `clip`, `lr`, `batch`, `train`, `test`, `iterations`, `eval_every` (the six
+/// of [`TrainSchedule`] and the episode counts), the controller `width` (documented by the given
+/// string) and the `seed`. `new(own args.., mode, iterations)` sets the leading fields and the
+/// width to the given expressions (which may use the own args), the schedule to
+/// [`TrainSchedule::paper`]`(mode, iterations)`, 256 training and 256 test episodes and seed 42;
+/// `schedule()` returns the optimiser side.
+///
+/// ```text
+/// experiment_config! {
+///     /// Settings of one run.
+///     pub struct MyConfig {
+///         /// The physics.
+///         pub physics: MyPhysics = MyPhysics::new(size),
+///     }
+///     width: "Hidden width of the controller. Default `100`." = 100,
+///     /// The paper's settings for `size`, `mode` and `iterations` optimizer steps.
+///     new(size: usize),
+/// }
+/// ```
+macro_rules! experiment_config {
+    (
+        $(#[$meta:meta])*
+        pub struct $name:ident {
+            $($(#[$field_meta:meta])* pub $field:ident: $ty:ty = $value:expr,)*
+        }
+        width: $width_doc:literal = $width:expr,
+        $(#[$new_meta:meta])*
+        new($($arg:ident: $arg_ty:ty),*) $(,)?
+    ) => {
+        $(#[$meta])*
+        #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+        pub struct $name {
+            $($(#[$field_meta])* pub $field: $ty,)*
+            /// Gradient mode.
+            pub mode: $crate::bptt::GradientMode,
+            /// Clipping of the (combined) gradient.
+            pub clip: pbdl_core::train::ClipConfig,
+            /// Adam learning rate. Default `1e-3`.
+            pub lr: f64,
+            /// Batch size. Default `8`.
+            pub batch: usize,
+            /// Training episodes. Default `256`.
+            pub train: usize,
+            /// Test episodes. Default `256`.
+            pub test: usize,
+            /// Optimizer steps.
+            pub iterations: usize,
+            /// Evaluate the test loss every this many steps.
+            pub eval_every: usize,
+            #[doc = $width_doc]
+            pub width: usize,
+            /// Seed of the data and the controller. Default `42`.
+            pub seed: u64,
+        }
+
+        impl $name {
+            $(#[$new_meta])*
+            pub fn new($($arg: $arg_ty,)* mode: $crate::bptt::GradientMode, iterations: usize) -> Self {
+                let schedule = $crate::bptt::TrainSchedule::paper(mode, iterations);
+                Self {
+                    $($field: $value,)*
+                    mode: schedule.mode,
+                    clip: schedule.clip,
+                    lr: schedule.lr,
+                    batch: schedule.batch,
+                    train: 256,
+                    test: 256,
+                    iterations: schedule.iterations,
+                    eval_every: schedule.eval_every,
+                    width: $width,
+                    seed: 42,
+                }
+            }
+
             /// The optimiser side of this run.
             pub fn schedule(&self) -> $crate::bptt::TrainSchedule {
                 $crate::bptt::TrainSchedule {
@@ -199,30 +271,7 @@ macro_rules! impl_schedule {
         }
     };
 }
-pub(crate) use impl_schedule;
-
-/// The paper's settings of an experiment's config struct (used as the body of its `new`):
-/// [`TrainSchedule::paper`]`(mode, iterations)` for the six schedule fields, 256 training and
-/// 256 test episodes, seed 42, and the experiment's own fields as given,
-/// `paper_config!(mode, iterations, { physics: ..., width: ... })`.
-macro_rules! paper_config {
-    ($mode:expr, $iterations:expr, { $($field:ident: $value:expr),* $(,)? }) => {{
-        let schedule = $crate::bptt::TrainSchedule::paper($mode, $iterations);
-        Self {
-            mode: schedule.mode,
-            clip: schedule.clip,
-            lr: schedule.lr,
-            batch: schedule.batch,
-            iterations: schedule.iterations,
-            eval_every: schedule.eval_every,
-            train: 256,
-            test: 256,
-            seed: 42,
-            $($field: $value,)*
-        }
-    }};
-}
-pub(crate) use paper_config;
+pub(crate) use experiment_config;
 
 /// A rollout and its loss, as [`gradients`] takes them.
 pub struct Rollout<'a> {
@@ -247,21 +296,11 @@ pub fn train(
     mut evaluate: impl FnMut() -> Result<f64>,
 ) -> Result<BpttRun> {
     let n_train = train.dim(0)?;
-    if schedule.batch == 0 || schedule.batch > n_train {
-        return Err(crate::Error::InvalidConfig {
-            name: "batch",
-            value: schedule.batch as f64,
-            hint: "use a batch size between 1 and the number of training episodes",
-        });
-    }
+    check_batch(schedule.batch, n_train)?;
     let adam = OptimizerConfig::Adam(AdamConfig { lr: schedule.lr, ..Default::default() });
     let mut opt = adam.build(vars.to_vec())?;
-    let mut run = BpttRun { steps: vec![0], test_loss: vec![evaluate()?], ..Default::default() };
-    let n_batches = n_train / schedule.batch;
-    let (mut agree_sum, mut agree_n) = (0.0, 0usize);
-    for it in 0..schedule.iterations {
-        let s0 = train.narrow(0, (it % n_batches) * schedule.batch, schedule.batch)?;
-        let t = Instant::now();
+    let mut step = |first: usize| -> Result<Option<f64>> {
+        let s0 = train.narrow(0, first, schedule.batch)?;
         let g = gradients(
             schedule.mode,
             vars,
@@ -273,16 +312,53 @@ pub fn train(
             &schedule.clip,
         )?;
         opt.step(&g.grads)?;
+        Ok(g.agreement)
+    };
+    run_schedule(schedule, n_train, &mut (), |_, first| step(first), |_, _| evaluate())
+}
+
+/// The loop of a stabilized-BPTT run, written once for the candle path ([`train`]) and the
+/// cart-pole fast path: checks the batch size against the `n_train` training episodes, then
+/// calls `step(model, first)` (gradient and optimiser update on the batch of episodes
+/// `first..first + batch`, cycled in order; returns mode C's sign agreement) `iterations`
+/// times, timing it, and records `evaluate(model, steps_done)` at step 0, every `eval_every`
+/// steps and after the last.
+pub(crate) fn run_schedule<S>(
+    schedule: &TrainSchedule,
+    n_train: usize,
+    model: &mut S,
+    mut step: impl FnMut(&mut S, usize) -> Result<Option<f64>>,
+    mut evaluate: impl FnMut(&S, usize) -> Result<f64>,
+) -> Result<BpttRun> {
+    check_batch(schedule.batch, n_train)?;
+    let mut run = BpttRun { steps: vec![0], test_loss: vec![evaluate(model, 0)?], ..Default::default() };
+    let n_batches = n_train / schedule.batch;
+    let (mut agree_sum, mut agree_n) = (0.0, 0usize);
+    for it in 0..schedule.iterations {
+        let t = Instant::now();
+        let agreement = step(model, (it % n_batches) * schedule.batch)?;
         run.seconds += t.elapsed().as_secs_f64();
-        if let Some(a) = g.agreement {
+        if let Some(a) = agreement {
             agree_sum += a;
             agree_n += 1;
         }
         if (it + 1) % schedule.eval_every.max(1) == 0 || it + 1 == schedule.iterations {
             run.steps.push(it + 1);
-            run.test_loss.push(evaluate()?);
+            run.test_loss.push(evaluate(model, it + 1)?);
         }
     }
     run.agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
     Ok(run)
+}
+
+/// A batch size between 1 and the number `n_train` of training episodes.
+fn check_batch(batch: usize, n_train: usize) -> Result<()> {
+    if batch == 0 || batch > n_train {
+        return Err(crate::Error::InvalidConfig {
+            name: "batch",
+            value: batch as f64,
+            hint: "use a batch size between 1 and the number of training episodes",
+        });
+    }
+    Ok(())
 }

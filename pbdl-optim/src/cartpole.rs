@@ -22,11 +22,10 @@
 
 pub mod fast;
 
-use crate::bptt::{GradientMode, Rollout};
+use crate::bptt::Rollout;
 pub use crate::controller::DenseController;
 use crate::error::Result;
 use candle_core::{Device, Tensor};
-use pbdl_core::train::ClipConfig;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -108,41 +107,16 @@ impl CartPole {
 /// [`DenseController::with_zero_last_layer`] so training starts from `F = 0`.
 pub type Controller = DenseController;
 
-/// Settings of one cart-pole training run.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct CartPoleConfig {
-    /// The physics.
-    pub physics: CartPole,
-    /// Gradient mode.
-    pub mode: GradientMode,
-    /// Clipping of the (combined) gradient.
-    pub clip: ClipConfig,
-    /// Adam learning rate. Default `1e-3`.
-    pub lr: f64,
-    /// Batch size. Default `8`.
-    pub batch: usize,
-    /// Training episodes. Default `256`.
-    pub train: usize,
-    /// Test episodes. Default `256`.
-    pub test: usize,
-    /// Optimizer steps.
-    pub iterations: usize,
-    /// Evaluate the test loss every this many steps.
-    pub eval_every: usize,
-    /// Hidden width of the controller. Default `100`.
-    pub width: usize,
-    /// Seed of the data and the controller. Default `42`.
-    pub seed: u64,
-}
-
-impl CartPoleConfig {
-    /// The paper's settings for `poles` poles and `mode`, with `iterations` optimizer steps.
-    pub fn new(poles: usize, mode: GradientMode, iterations: usize) -> Self {
-        crate::bptt::paper_config!(mode, iterations, { physics: CartPole::new(poles), width: 100 })
+crate::bptt::experiment_config! {
+    /// Settings of one cart-pole training run.
+    pub struct CartPoleConfig {
+        /// The physics.
+        pub physics: CartPole = CartPole::new(poles),
     }
+    width: "Hidden width of the controller. Default `100`." = 100,
+    /// The paper's settings for `poles` poles and `mode`, with `iterations` optimizer steps.
+    new(poles: usize),
 }
-
-crate::bptt::impl_schedule!(CartPoleConfig);
 
 /// What a cart-pole run measured (test loss `1 - mean cos th`).
 pub type CartPoleRun = crate::bptt::BpttRun;

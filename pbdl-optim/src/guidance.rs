@@ -27,11 +27,10 @@
 //! [`train`] runs one configuration; the bench entry `guidance` compares modes F, P and C for
 //! `rc in {1, 0.1, 0.01, 0.001}`.
 
-use crate::bptt::{GradientMode, Rollout};
+use crate::bptt::Rollout;
 pub use crate::controller::DenseController;
 use crate::error::{Error, Result};
 use candle_core::{Device, Tensor};
-use pbdl_core::train::ClipConfig;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -276,43 +275,19 @@ impl GuidanceStepper {
     }
 }
 
-/// Settings of one guidance training run.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct GuidanceConfig {
-    /// The physics.
-    pub physics: Guidance,
-    /// Weight `rc` of the control cost.
-    pub rc: f64,
-    /// Gradient mode.
-    pub mode: GradientMode,
-    /// Clipping of the (combined) gradient.
-    pub clip: ClipConfig,
-    /// Adam learning rate. Default `1e-3`.
-    pub lr: f64,
-    /// Batch size. Default `8`.
-    pub batch: usize,
-    /// Training episodes. Default `256`.
-    pub train: usize,
-    /// Test episodes. Default `256`.
-    pub test: usize,
-    /// Optimizer steps (the paper: 10 epochs = 320).
-    pub iterations: usize,
-    /// Evaluate the test loss every this many steps.
-    pub eval_every: usize,
-    /// Hidden width of the controller. Default `100`.
-    pub width: usize,
-    /// Seed of the data and the controller. Default `42`.
-    pub seed: u64,
-}
-
-impl GuidanceConfig {
-    /// The paper's settings (2 drivers, 4 evaders) for `rc` and `mode`, with `iterations` steps.
-    pub fn new(rc: f64, mode: GradientMode, iterations: usize) -> Self {
-        crate::bptt::paper_config!(mode, iterations, { physics: Guidance::default(), rc: rc, width: 100 })
+crate::bptt::experiment_config! {
+    /// Settings of one guidance training run.
+    pub struct GuidanceConfig {
+        /// The physics.
+        pub physics: Guidance = Guidance::default(),
+        /// Weight `rc` of the control cost.
+        pub rc: f64 = rc,
     }
+    width: "Hidden width of the controller. Default `100`." = 100,
+    /// The paper's settings (2 drivers, 4 evaders) for `rc` and `mode`, with `iterations` steps
+    /// (the paper: 10 epochs = 320).
+    new(rc: f64),
 }
-
-crate::bptt::impl_schedule!(GuidanceConfig);
 
 /// What a guidance run measured (test loss with the control cost).
 pub type GuidanceRun = crate::bptt::BpttRun;

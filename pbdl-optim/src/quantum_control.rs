@@ -27,12 +27,11 @@
 //! weights and zero biases. [`train`] runs one configuration; the bench entry
 //! `quantum_control` compares modes F, P and C for targets 3, 4 and 5.
 
-use crate::bptt::{GradientMode, Rollout};
+use crate::bptt::Rollout;
 use crate::error::{Error, Result};
 use candle_core::{DType, Device, Shape, Tensor, Var};
 use pbdl_core::conv::{conv1d, Conv1dParams};
 use pbdl_core::op::{apply2, apply_kernel3, Kernel2, Kernel3, Op2};
-use pbdl_core::train::ClipConfig;
 use pbdl_core::Real;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -411,41 +410,17 @@ impl ConvController {
     }
 }
 
-/// Settings of one quantum-control training run.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct QuantumControlConfig {
-    /// The physics (with the target eigenstate).
-    pub physics: QuantumControl,
-    /// Gradient mode.
-    pub mode: GradientMode,
-    /// Clipping of the (combined) gradient.
-    pub clip: ClipConfig,
-    /// Adam learning rate. Default `1e-3`.
-    pub lr: f64,
-    /// Batch size. Default `8`.
-    pub batch: usize,
-    /// Training episodes. Default `256`.
-    pub train: usize,
-    /// Test episodes. Default `256`.
-    pub test: usize,
-    /// Optimizer steps (the paper: 1000 epochs = 32000).
-    pub iterations: usize,
-    /// Evaluate the test loss every this many steps.
-    pub eval_every: usize,
-    /// Channels of the controller. Default `60`.
-    pub width: usize,
-    /// Seed of the data and the controller. Default `42`.
-    pub seed: u64,
-}
-
-impl QuantumControlConfig {
-    /// The paper's settings for `target` and `mode`, with `iterations` optimizer steps.
-    pub fn new(target: usize, mode: GradientMode, iterations: usize) -> Self {
-        crate::bptt::paper_config!(mode, iterations, { physics: QuantumControl::paper(target), width: 60 })
+crate::bptt::experiment_config! {
+    /// Settings of one quantum-control training run.
+    pub struct QuantumControlConfig {
+        /// The physics (with the target eigenstate).
+        pub physics: QuantumControl = QuantumControl::paper(target),
     }
+    width: "Channels of the controller. Default `60`." = 60,
+    /// The paper's settings for `target` and `mode`, with `iterations` optimizer steps (the
+    /// paper: 1000 epochs = 32000).
+    new(target: usize),
 }
-
-crate::bptt::impl_schedule!(QuantumControlConfig);
 
 /// What a quantum-control run measured (test loss `sum_k (1 - fidelity_k)`).
 pub type QuantumControlRun = crate::bptt::BpttRun;

@@ -30,13 +30,45 @@ pub mod peak;
 pub mod peak_experiment;
 pub mod svd;
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use candle_core::{DType, Device, Tensor, Var};
-use candle_nn::Optimizer;
+use candle_nn::{Optimizer, VarMap};
 use faer::Mat;
-use pbdl_core::train::{AdamConfig, OptimizerConfig};
+use pbdl_core::io::CheckpointMeta;
+use pbdl_core::train::{AdamConfig, LoopConfig, OptimizerConfig, TrainLoop};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
+
+/// `steps` full-batch Adam updates (learning rate `lr`, other settings at their defaults) of
+/// `vars` on the loss `loss_at(step)`, run on pbdl-core's [`TrainLoop`] (in memory, no
+/// checkpoints, no progress bar). Returns the training seconds.
+///
+/// A non-finite loss stops the run with [`Error::Diverged`] before that update (the variables
+/// keep the last good step); the loop's guard also stops on a non-finite gradient norm, as
+/// [`Error::Core`].
+pub(crate) fn full_batch_adam(
+    vars: &[Var],
+    lr: f64,
+    steps: usize,
+    loss_at: impl FnMut(u64) -> Result<Tensor>,
+) -> Result<f64> {
+    let varmap = VarMap::new();
+    varmap
+        .data()
+        .lock()
+        .map_err(|_| candle_core::Error::Msg("full_batch_adam: the variable map's lock is poisoned".into()))?
+        .extend(vars.iter().enumerate().map(|(i, v)| (format!("v{i}"), v.clone())));
+    let run = TrainLoop::resume(&varmap, LoopConfig { steps: steps as u64, progress: false, ..Default::default() })?;
+    let adam = OptimizerConfig::Adam(AdamConfig { lr, ..Default::default() });
+    let report = run.run::<Error>(&adam, |_| lr, CheckpointMeta::at, loss_at).map_err(|e| match e {
+        // The loss guard's error as the racecar trainers have always reported it.
+        Error::Core(pbdl_core::Error::Diverged { step, quantity, value, .. }) if quantity == "loss" => {
+            Error::Diverged { step, loss: value, last_good: step.saturating_sub(1) }
+        }
+        e => e,
+    })?;
+    Ok(report.seconds)
+}
 
 /// A dense ReLU network whose weights are shared with its reverse (reconstruction) pass.
 #[derive(Clone, Debug)]

@@ -48,7 +48,6 @@ use crate::error::{check_len, Error, Result};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 use pbdl_core::train::{clip_in_place, AdamConfig, ClipConfig, FlatAdam};
-use std::time::Instant;
 
 /// Offsets of the six parameter blocks in a flat vector, in the order of
 /// [`DenseController::vars`](crate::controller::DenseController::vars): `w0 [inputs, width]`,
@@ -684,33 +683,17 @@ pub fn train_with(cfg: &CartPoleConfig, on_eval: &mut dyn FnMut(usize, f64)) -> 
     let mut opt = FlatAdam::new(AdamConfig { lr: cfg.lr, ..Default::default() }, net.params.len());
     let mut bptt = FastBptt::new(&phys, cfg.width, cfg.batch);
     let d = phys.state_dim();
-    let mut run = CartPoleRun::default();
-    let mut eval = |run: &mut CartPoleRun, net: &FastController, step: usize| -> Result<()> {
-        let loss = evaluate(&phys, net, &test)?;
-        run.steps.push(step);
-        run.test_loss.push(loss);
-        on_eval(step, loss);
-        Ok(())
-    };
-    eval(&mut run, &net, 0)?;
-    let n_batches = (cfg.train / cfg.batch).max(1);
-    let (mut agree_sum, mut agree_n) = (0.0, 0usize);
-    for it in 0..cfg.iterations {
-        let start = (it % n_batches) * cfg.batch * d;
-        let t = Instant::now();
-        let info = bptt.gradients(&net, &train[start..start + cfg.batch * d], cfg.mode, &cfg.clip)?;
+    let step = |net: &mut FastController, first: usize| -> Result<Option<f64>> {
+        let info = bptt.gradients(net, &train[first * d..(first + cfg.batch) * d], cfg.mode, &cfg.clip)?;
         opt.step(&mut net.params, &bptt.grad)?;
-        run.seconds += t.elapsed().as_secs_f64();
-        if let Some(a) = info.agreement {
-            agree_sum += a;
-            agree_n += 1;
-        }
-        if (it + 1) % cfg.eval_every.max(1) == 0 || it + 1 == cfg.iterations {
-            eval(&mut run, &net, it + 1)?;
-        }
-    }
-    run.agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
-    Ok(run)
+        Ok(info.agreement)
+    };
+    let test_loss = |net: &FastController, step: usize| -> Result<f64> {
+        let loss = evaluate(&phys, net, &test)?;
+        on_eval(step, loss);
+        Ok(loss)
+    };
+    crate::bptt::run_schedule(&cfg.schedule(), cfg.train, &mut net, step, test_loss)
 }
 
 /// [`train_with`] without progress output.

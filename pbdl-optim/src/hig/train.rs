@@ -116,6 +116,80 @@ fn cache_of<C: Default + Send + 'static>(slot: &mut Box<dyn Any + Send>) -> &mut
     }
 }
 
+/// What a trainer's step needs from the forward pass.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Forward {
+    /// Outcomes `y` and the physics Jacobians `jp` (HIG / Gauss-Newton).
+    WithJacobian,
+    /// Outcomes `y` only (Adam, which then takes the physics VJP).
+    OutcomesOnly,
+}
+
+impl Workspace {
+    /// Runs the network and the physics on `batch` (with `J_phys` as `forward` asks), then the
+    /// loss and its gradient `g`; [`Error::Diverged`] at `step` for a non-finite loss. Returns
+    /// the loss; `y`, `jp`, `g` and the model's cache hold the pass.
+    fn forward_loss<M: JacobianModel + ?Sized>(
+        &mut self,
+        net: &M,
+        physics: &dyn Physics,
+        batch: Batch<'_>,
+        (loss, step): (Loss, u64),
+        forward: Forward,
+    ) -> Result<f64> {
+        let cache = cache_of::<M::Cache>(&mut self.cache);
+        let (b, nu, ny, nx) = (batch.len, physics.control_dim(), physics.output_dim(), physics.context_dim());
+        match forward {
+            Forward::WithJacobian => {
+                forward_with_physics_jacobian(net, physics, batch, cache, &mut self.y, &mut self.jp)?;
+            }
+            Forward::OutcomesOnly => {
+                let u = forward_net(net, physics, batch, cache)?;
+                self.y.resize(b * ny, 0.0);
+                self.y.par_chunks_mut(ny).enumerate().try_for_each(|(s, ys)| {
+                    physics.forward(&batch.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], ys)
+                })?;
+            }
+        }
+        let value = loss_and_gradient(loss, &self.y, batch.targets, b, ny, &mut self.g)?;
+        check_diverged(step, value)?;
+        Ok(value)
+    }
+}
+
+/// The update a trainer takes after [`Workspace::forward_loss`]: the SVD's numbers, if any.
+type Update = Result<Option<SolveInfo>>;
+
+/// The methods both trainers share: `with_loss`, `loss` and `step` (the forward pass and loss
+/// of [`Workspace::forward_loss`], then the trainer's own `update`, counting the step). Takes
+/// the doc of `step` and the [`Forward`] the trainer needs.
+macro_rules! trainer_step {
+    ($(#[$step_doc:meta])* forward: $forward:expr) => {
+        /// The same trainer minimising `loss` (default [`Loss::SquaredError`]).
+        pub fn with_loss(mut self, loss: Loss) -> Self {
+            self.loss = loss;
+            self
+        }
+
+        /// The per-sample loss.
+        pub fn loss(&self) -> Loss {
+            self.loss
+        }
+
+        $(#[$step_doc])*
+        pub fn step<M: JacobianModel + ?Sized>(
+            &mut self,
+            net: &mut M,
+            physics: &dyn Physics,
+            batch: Batch<'_>,
+        ) -> Result<StepInfo> {
+            let loss = self.ws.forward_loss(&*net, physics, batch, (self.loss, self.step), $forward)?;
+            let solve = self.update(net, physics, batch)?;
+            Ok(StepInfo::next(&mut self.step, loss, solve))
+        }
+    };
+}
+
 /// What one training step did.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepInfo {
@@ -178,10 +252,12 @@ impl HigTrainer {
         })
     }
 
-    /// The same trainer minimising `loss` (default [`Loss::SquaredError`]).
-    pub fn with_loss(mut self, loss: Loss) -> Self {
-        self.loss = loss;
-        self
+    trainer_step! {
+        /// One step on `batch`: `theta -= eta V diag(s^-kappa) U^T g`.
+        ///
+        /// A non-finite loss returns [`Error::Diverged`] before the update, so `net` keeps the
+        /// parameters of the last good step.
+        forward: Forward::WithJacobian
     }
 
     /// The settings.
@@ -189,39 +265,22 @@ impl HigTrainer {
         &self.cfg
     }
 
-    /// The per-sample loss.
-    pub fn loss(&self) -> Loss {
-        self.loss
-    }
-
     /// The solver (singular values and vectors of the last step).
     pub fn solver(&self) -> &HalfInverse {
         &self.solver
     }
 
-    /// One step on `batch`: `theta -= eta V diag(s^-kappa) U^T g`.
-    ///
-    /// A non-finite loss returns [`Error::Diverged`] before the update, so `net` keeps the
-    /// parameters of the last good step.
-    pub fn step<M: JacobianModel + ?Sized>(
-        &mut self,
-        net: &mut M,
-        physics: &dyn Physics,
-        batch: Batch<'_>,
-    ) -> Result<StepInfo> {
-        let ws = &mut self.ws;
-        let cache = cache_of::<M::Cache>(&mut ws.cache);
-        forward_with_physics_jacobian(&*net, physics, batch, cache, &mut ws.y, &mut ws.jp)?;
-        let loss = loss_and_gradient(self.loss, &ws.y, batch.targets, batch.len, physics.output_dim(), &mut ws.g)?;
-        check_diverged(self.step, loss)?;
+    /// `J = J_phys J_net` of the batch, the half-inverse solve, the update of `net`.
+    fn update<M: JacobianModel + ?Sized>(&mut self, net: &mut M, physics: &dyn Physics, batch: Batch<'_>) -> Update {
+        let cache = cache_of::<M::Cache>(&mut self.ws.cache);
         let (rows, p) = (batch.len * physics.output_dim(), net.n_params());
         self.jac.resize(rows * p, 0.0);
-        net.jacobian_rows(cache, &ws.jp, physics.output_dim(), &mut self.jac)?;
+        net.jacobian_rows(cache, &self.ws.jp, physics.output_dim(), &mut self.jac)?;
         self.dtheta.resize(p, 0.0);
         let j = MatRef::from_row_major_slice(&self.jac, rows, p);
-        let info = self.solver.solve(&self.cfg, j, &ws.g, &mut self.dtheta)?;
+        let info = self.solver.solve(&self.cfg, j, &self.ws.g, &mut self.dtheta)?;
         net.apply_update(self.cfg.eta, &self.dtheta)?;
-        Ok(StepInfo::next(&mut self.step, loss, Some(info)))
+        Ok(Some(info))
     }
 }
 
@@ -262,38 +321,20 @@ impl AdamTrainer {
         })
     }
 
-    /// The same trainer minimising `loss` (default [`Loss::SquaredError`]).
-    pub fn with_loss(mut self, loss: Loss) -> Self {
-        self.loss = loss;
-        self
+    trainer_step! {
+        /// One Adam step on `batch`. The network's parameters must not be changed elsewhere
+        /// between steps (Adam keeps its own copy and its moments).
+        forward: Forward::OutcomesOnly
     }
 
-    /// The per-sample loss.
-    pub fn loss(&self) -> Loss {
-        self.loss
-    }
-
-    /// One Adam step on `batch`. The network's parameters must not be changed elsewhere
-    /// between steps (Adam keeps its own copy and its moments).
-    pub fn step<M: JacobianModel + ?Sized>(
-        &mut self,
-        net: &mut M,
-        physics: &dyn Physics,
-        batch: Batch<'_>,
-    ) -> Result<StepInfo> {
-        let ws = &mut self.ws;
-        let cache = cache_of::<M::Cache>(&mut ws.cache);
+    /// The exact gradient (physics VJP, then the network's backward pass) and the Adam update.
+    fn update<M: JacobianModel + ?Sized>(&mut self, net: &mut M, physics: &dyn Physics, batch: Batch<'_>) -> Update {
+        let cache = cache_of::<M::Cache>(&mut self.ws.cache);
         let (b, nu, ny, nx) = (batch.len, physics.control_dim(), physics.output_dim(), physics.context_dim());
-        let u = forward_net(&*net, physics, batch, cache)?;
-        ws.y.resize(b * ny, 0.0);
-        ws.y.par_chunks_mut(ny).enumerate().try_for_each(|(s, ys)| {
-            physics.forward(&batch.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], ys)
-        })?;
-        let loss = loss_and_gradient(self.loss, &ws.y, batch.targets, b, ny, &mut ws.g)?;
-        check_diverged(self.step, loss)?;
+        let u = net.output(cache);
         // Physics VJP per sample: cot_s = J_phys,s^T g_s.
         self.cot.resize(b * nu, 0.0);
-        let g = &ws.g;
+        let g = &self.ws.g;
         self.cot.par_chunks_mut(nu).enumerate().try_for_each(|(s, c)| {
             physics.vjp(&batch.contexts[s * nx..(s + 1) * nx], &u[s * nu..(s + 1) * nu], &g[s * ny..(s + 1) * ny], c)
         })?;
@@ -305,7 +346,7 @@ impl AdamTrainer {
         let surrogate = (self.theta.as_tensor() * g)?.sum_all()?;
         self.opt.backward_step(&surrogate)?;
         net.write_params(&self.theta.as_tensor().to_vec1::<f64>()?)?;
-        Ok(StepInfo::next(&mut self.step, loss, None))
+        Ok(None)
     }
 }
 

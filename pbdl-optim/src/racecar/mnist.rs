@@ -30,9 +30,7 @@ use super::digits::{digit_images, DigitJitter, SIDE};
 use super::svd::{principal_alignment, Subspace};
 use crate::error::{Error, Result};
 use candle_core::{DType, Device, Tensor, Var, D};
-use candle_nn::Optimizer;
 use faer::Mat;
-use pbdl_core::train::{AdamConfig, OptimizerConfig};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -230,22 +228,16 @@ impl MnistRun {
 /// scaled) and `onehot` with weight `lambda` for `cfg.steps` full-batch Adam steps, and measures
 /// the alignment of its leading singular vectors with the span of `x`.
 ///
+/// The steps run on pbdl-core's [`pbdl_core::train::TrainLoop`] (in memory, no checkpoints, no
+/// progress bar).
+///
 /// # Errors
-/// [`Error::Diverged`] when the loss becomes non-finite; shape errors as
-/// [`linear_racecar_loss`].
+/// [`Error::Diverged`] when the loss becomes non-finite (the guard of the loop also stops on a
+/// non-finite gradient norm, as [`Error::Core`]); shape errors as [`linear_racecar_loss`].
 pub fn train_linear(cfg: &MnistConfig, lambda: f64, x: &Tensor, onehot: &Tensor) -> Result<(LinearRacecar, MnistRun)> {
     let model = LinearRacecar::new(x.dim(1)?, cfg.classes, cfg.init_scale, cfg.seed + 1)?;
-    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, ..Default::default() }).build(model.vars())?;
-    let start = std::time::Instant::now();
-    for step in 0..cfg.steps {
-        let loss = model.loss(x, onehot, lambda)?;
-        let value = loss.total.to_scalar::<f64>()?;
-        if !value.is_finite() {
-            return Err(Error::Diverged { step: step as u64, loss: value, last_good: step.saturating_sub(1) as u64 });
-        }
-        opt.backward_step(&loss.total)?;
-    }
-    let seconds = start.elapsed().as_secs_f64();
+    let seconds =
+        super::full_batch_adam(&model.vars(), cfg.lr, cfg.steps, |_| Ok(model.loss(x, onehot, lambda)?.total))?;
     let loss = model.loss(x, onehot, lambda)?;
     let pred = loss.logits.argmax(D::Minus1)?;
     let truth = onehot.argmax(D::Minus1)?;

@@ -19,10 +19,8 @@ use super::conv_net::{patches, BnConvNet, ConvSpec};
 use super::ortho::PowerIteration;
 use super::peak::peak_images;
 use super::svd::{principal_alignment, Subspace};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use candle_core::{DType, Tensor, Var, D};
-use candle_nn::Optimizer;
-use pbdl_core::train::{AdamConfig, OptimizerConfig};
 use serde::{Deserialize, Serialize};
 
 /// The extra loss term of a run.
@@ -142,7 +140,12 @@ fn cross_entropy(logits: &Tensor, onehot: &Tensor) -> Result<(Tensor, f64)> {
     Ok((ce, acc))
 }
 
-/// Trains one net with one regularizer on `x` and measures the alignment.
+/// Trains one net with one regularizer on `x` and measures the alignment. The full-batch Adam
+/// steps run on pbdl-core's [`pbdl_core::train::TrainLoop`] (in memory, no progress bar).
+///
+/// # Errors
+/// [`crate::Error::Diverged`] when the loss becomes non-finite (the loop's guard also stops on
+/// a non-finite gradient norm, as [`crate::Error::Core`]).
 pub fn train_peak_net(
     cfg: &PeakConfig,
     net_kind: PeakNet,
@@ -180,17 +183,15 @@ pub fn train_peak_net(
             )
         }
     };
-    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, ..Default::default() }).build(vars)?;
     let mut power: Vec<PowerIteration> = mats()?
         .iter()
         .enumerate()
         .map(|(i, w)| PowerIteration::new(w.dim(1)?, cfg.seed + 10 + i as u64))
         .collect::<candle_core::Result<_>>()?;
-    let start = std::time::Instant::now();
-    for step in 0..cfg.steps {
+    let seconds = super::full_batch_adam(&vars, cfg.lr, cfg.steps, |_| {
         let pass = forward(x)?;
         let (task, _) = cross_entropy(pass.acts.last().expect("output"), onehot)?;
-        let loss = match reg {
+        Ok(match reg {
             Regularizer::Plain => task,
             Regularizer::Racecar => (task + (recon(&pass)? * cfg.lambda)?)?,
             Regularizer::Orthogonality => {
@@ -200,14 +201,8 @@ pub fn train_peak_net(
                 }
                 l
             }
-        };
-        let value = loss.to_dtype(DType::F64)?.to_scalar::<f64>()?;
-        if !value.is_finite() {
-            return Err(Error::Diverged { step: step as u64, loss: value, last_good: step.saturating_sub(1) as u64 });
-        }
-        opt.backward_step(&loss)?;
-    }
-    let seconds = start.elapsed().as_secs_f64();
+        })
+    })?;
     let pass = forward(x)?;
     let (task, accuracy) = cross_entropy(pass.acts.last().expect("output"), onehot)?;
     let reconstruction = recon(&pass)?.to_dtype(DType::F64)?.to_scalar::<f64>()?;
