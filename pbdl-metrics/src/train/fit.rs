@@ -13,9 +13,11 @@ use super::loss::{ground_truth, metric_loss, pairs, GroundTruth, LossConfig};
 use super::model::{to_byte_range, MetricNet};
 use crate::{Error, Result};
 use candle_core::{Device, Tensor};
-use pbdl_core::train::{train_step, AdamConfig, ClipConfig, NanGuard, OptimizerConfig, Progress, ScalarLog};
+use pbdl_core::io::CheckpointMeta;
+use pbdl_core::train::{AdamConfig, ClipConfig, LoopConfig, OptimizerConfig, ScalarLog, StepInfo, TrainLoop};
 use rand::seq::SliceRandom;
 use rand::Rng;
+use std::cell::RefCell;
 use std::time::Instant;
 
 /// Settings of [`train`].
@@ -273,49 +275,67 @@ pub fn train(net: &mut MetricNet, data: &[Sequence], cfg: &TrainConfig) -> Resul
     let calibration_seconds = t0.elapsed().as_secs_f64();
     let gts: Vec<Vec<f64>> = data.iter().map(|s| ground_truth(cfg.ground_truth, &s.frames)).collect::<Result<_>>()?;
     let vars = if cfg.train_base { net.vars() } else { net.channel_weights() };
-    let mut opt = OptimizerConfig::Adam(cfg.adam).build(vars.clone())?;
-    let mut guard = NanGuard::new();
-    let mut log = ScalarLog::new();
-    let total = (cfg.epochs * data.len()) as u64;
-    let bar = if cfg.progress { Progress::new(total) } else { Progress::hidden(total) };
+    let n = data.len() as u64;
+    let loop_cfg = LoopConfig {
+        steps: cfg.epochs as u64 * n,
+        checkpoint_every: 0,
+        dir: None,
+        clip: cfg.clip,
+        progress: cfg.progress,
+    };
+    // The loss reads the network, the hook clamps and recalibrates it; both draw from `rng`.
+    let net = RefCell::new(net);
+    let rng = RefCell::new(rng);
     let mut order: Vec<usize> = (0..data.len()).collect();
-    let mut epoch_loss = Vec::with_capacity(cfg.epochs);
+    let mut log = ScalarLog::new();
     let t1 = Instant::now();
-    let mut step = 0u64;
-    for _ in 0..cfg.epochs {
-        order.shuffle(&mut rng);
-        let mut sum = 0.0;
-        for &i in &order {
-            let loss = if cfg.pair_groups > 1 {
-                let f = &data[i].frames;
-                let side = crop_side(f, cfg.crop)?;
-                let plan = random_pair_groups(cfg.pair_groups, f.dim(2)?.min(f.dim(3)?), side, cfg.augment, &mut rng);
-                let d = grouped_distances(net, f, side, &plan, cfg.dropout, rng.random())?;
-                let g = Tensor::from_slice(&gts[i], gts[i].len(), &Device::Cpu)?.to_dtype(d.dtype())?;
-                metric_loss(&d, &g, &cfg.loss)?
-            } else {
-                let mut frames = if cfg.augment {
-                    augment(&data[i].frames, rng.random_range(0..8))?
-                } else {
-                    data[i].frames.clone()
-                };
-                if cfg.crop < 1.0 {
-                    frames = random_crop(&frames, crop_side(&frames, cfg.crop)?, &mut rng)?;
-                }
-                sequence_loss_dropout(net, &frames, &gts[i], &cfg.loss, cfg.dropout, rng.random())?
-            };
-            let info = train_step(step, &loss, &mut opt, &vars, &cfg.clip, &mut guard)?;
-            net.clamp_weights()?;
+    let report = TrainLoop::in_memory(vars, loop_cfg)?
+        .after_step(|step, info: &StepInfo| -> Result<()> {
+            net.borrow().clamp_weights()?;
             log.log(step, &[("loss", info.loss), ("grad_norm", info.grad_norm)])?;
-            bar.update(step, info.loss);
-            sum += info.loss;
-            step += 1;
-        }
-        epoch_loss.push(sum / data.len() as f64);
-        if cfg.recalibrate && cfg.train_base {
-            calibrate_on_crops(net, data, cfg.crop, &mut rng)?;
-        }
-    }
-    bar.finish();
+            if cfg.recalibrate && cfg.train_base && (step + 1) % n == 0 {
+                calibrate_on_crops(&mut net.borrow_mut(), data, cfg.crop, &mut *rng.borrow_mut())?;
+            }
+            Ok(())
+        })
+        .run::<Error>(
+            &OptimizerConfig::Adam(cfg.adam),
+            |_| cfg.adam.lr,
+            CheckpointMeta::at,
+            |step| {
+                let net = net.borrow();
+                let mut rng = rng.borrow_mut();
+                let rng = &mut *rng;
+                // Each epoch starts with a new order of the sequences.
+                if step % n == 0 {
+                    order.shuffle(rng);
+                }
+                let i = order[(step % n) as usize];
+                if cfg.pair_groups > 1 {
+                    let f = &data[i].frames;
+                    let side = crop_side(f, cfg.crop)?;
+                    let plan = random_pair_groups(cfg.pair_groups, f.dim(2)?.min(f.dim(3)?), side, cfg.augment, rng);
+                    let d = grouped_distances(&net, f, side, &plan, cfg.dropout, rng.random())?;
+                    let g = Tensor::from_slice(&gts[i], gts[i].len(), &Device::Cpu)?.to_dtype(d.dtype())?;
+                    metric_loss(&d, &g, &cfg.loss)
+                } else {
+                    let mut frames = if cfg.augment {
+                        augment(&data[i].frames, rng.random_range(0..8))?
+                    } else {
+                        data[i].frames.clone()
+                    };
+                    if cfg.crop < 1.0 {
+                        frames = random_crop(&frames, crop_side(&frames, cfg.crop)?, rng)?;
+                    }
+                    sequence_loss_dropout(&net, &frames, &gts[i], &cfg.loss, cfg.dropout, rng.random())
+                }
+            },
+        )?;
+    // Summed in step order, as the per-epoch running sum was.
+    let epoch_loss = report
+        .losses
+        .chunks(data.len())
+        .map(|epoch| epoch.iter().fold(0.0, |sum, &(_, l)| sum + l) / data.len() as f64)
+        .collect();
     Ok(TrainReport { epoch_loss, log, calibration_seconds, train_seconds: t1.elapsed().as_secs_f64() })
 }
