@@ -6,7 +6,7 @@
 //! |---|---|
 //! | [`hig`] | half-inverse gradients (HIG) and Gauss-Newton from one SVD solve ([`hig::HalfInverse`]), trainers ([`hig::HigTrainer`], [`hig::AdamTrainer`]) for any [`hig::JacobianModel`] (the [`mlp::Mlp`], or any candle model through [`hig::CandleModel`]), loss-vs-wall-clock runs |
 //! | [`mlp`] | a dense `f64` network with exact per-sample Jacobian rows ([`mlp::Mlp`]) |
-//! | [`physics`] | the [`physics::Physics`] trait (forward + exact Jacobian) and the experiments' physics: linear chain, nonlinear oscillators (RK4), Poisson 8x8, quantum dipole (Crank-Nicolson) |
+//! | [`physics`] | (also [`physics::StepperPhysics`]: HIG on any differentiable tensor stepper, Jacobians by backprop) the [`physics::Physics`] trait (forward + exact Jacobian) and the experiments' physics: linear chain, nonlinear oscillators (RK4), Poisson 8x8, quantum dipole (Crank-Nicolson) |
 //! | [`bptt`] | stabilized BPTT: gradient modes F, P, S, C for any candle rollout, with value / global-norm clipping, and the Adam training loop the experiments share ([`bptt::train`]) |
 //! | [`cartpole`] | cart-pole with 1..N poles, differentiable in candle, and the stabilized-BPTT training run on it |
 //! | [`controller`] | [`controller::DenseController`]: the dense tanh controller of the BPTT experiments |

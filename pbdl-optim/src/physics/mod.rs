@@ -11,16 +11,19 @@
 //! | [`oscillators`] | the pbdl-book linear chain and the HIG paper's nonlinear oscillators | `4`, `24` / `96`, `4` |
 //! | [`dipole`] | the HIG paper's quantum dipole: Crank-Nicolson for `i psi_t = (-psi_xx + u(t) x) psi`, Jacobian and VJP by an adjoint sweep | `28`, `384`, `28` (complex states as `Re, Im` pairs) |
 //! | [`poisson`] | the 5-point Laplacian on an 8x8 grid with zero boundary (`y = L u`) | `0`, `64`, `64` |
+//! | [`stepper`] | any differentiable [`pbdl_core::stepper::Stepper`] on tensors ([`StepperPhysics`]): the control is the initial state, the outcome the state after `n` steps; Jacobian by one candle backward pass per output entry (small problems) | `0`, `len`, `len` (`len`: the state's element count) |
 
 pub mod dipole;
 pub mod ode;
 pub mod oscillators;
 pub mod poisson;
+pub mod stepper;
 
 pub use dipole::QuantumDipole;
 pub use ode::{ControlledOde, Rk4Rollout};
 pub use oscillators::{Coupling, Oscillators};
 pub use poisson::Poisson8;
+pub use stepper::StepperPhysics;
 
 use crate::error::{check_len, Result};
 
