@@ -286,40 +286,25 @@ mod tests {
         let file = dir.join("cache").join("gen.npz");
         let load = |p: &Path| crate::io::read_npz_array(p, "x");
         let save = |p: &Path, t: &Tensor| crate::io::write_npz(p, &[("x", t)]);
-        let mut made = 0;
-        let x = cached(
-            &file,
-            load,
-            || -> Result<Tensor> {
-                made += 1;
-                Ok(ramp(3, 0.0))
-            },
-            save,
-        )
-        .unwrap();
-        let _ = cached(
-            &file,
-            load,
-            || -> Result<Tensor> {
-                made += 1;
-                Ok(ramp(3, 0.0))
-            },
-            save,
-        )
-        .unwrap();
-        assert_eq!(made, 1, "the second call reads the file");
+        let made = std::cell::Cell::new(0);
+        let run = || {
+            cached(
+                &file,
+                load,
+                || -> Result<Tensor> {
+                    made.set(made.get() + 1);
+                    Ok(ramp(3, 0.0))
+                },
+                save,
+            )
+            .unwrap()
+        };
+        let x = run();
+        let _ = run();
+        assert_eq!(made.get(), 1, "the second call reads the file");
         std::fs::write(&file, b"truncated").unwrap();
-        let y = cached(
-            &file,
-            load,
-            || -> Result<Tensor> {
-                made += 1;
-                Ok(ramp(3, 0.0))
-            },
-            save,
-        )
-        .unwrap();
-        assert_eq!(made, 2, "a broken file is regenerated");
+        let y = run();
+        assert_eq!(made.get(), 2, "a broken file is regenerated");
         assert_eq!(x.to_vec2::<f32>().unwrap(), y.to_vec2::<f32>().unwrap());
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -95,20 +95,8 @@ fn centre_velocity(u: &MacField) -> SceneResult<(Tensor, Tensor)> {
             out[j * nx + i] = 0.5 * (left + uu[j * nx + i]);
             out[n + j * nx + i] = 0.5 * (below + vv[j * nx + i]);
             // Corner ((i+1) dx, (j+1) dy); one-sided (clamped) at non-periodic upper faces.
-            let ir = if i + 1 < nx {
-                i + 1
-            } else if px {
-                0
-            } else {
-                i
-            };
-            let ju = if j + 1 < ny {
-                j + 1
-            } else if py {
-                0
-            } else {
-                j
-            };
+            let ir = next_index(i, nx, px);
+            let ju = next_index(j, ny, py);
             w[j * nx + i] = (vv[j * nx + ir] - vv[j * nx + i]) / g.dx() - (uu[ju * nx + i] - uu[j * nx + i]) / g.dy();
         }
     }
@@ -133,20 +121,8 @@ fn faces_from_centres(t: &Tensor, bc: &Boundaries) -> SceneResult<Tensor> {
     };
     for j in 0..ny {
         for i in 0..nx {
-            let ir = if i + 1 < nx {
-                i + 1
-            } else if px {
-                0
-            } else {
-                i
-            };
-            let ju = if j + 1 < ny {
-                j + 1
-            } else if py {
-                0
-            } else {
-                j
-            };
+            let ir = next_index(i, nx, px);
+            let ju = next_index(j, ny, py);
             out[j * nx + i] = 0.5 * (vals[j * nx + i] + vals[j * nx + ir]);
             out[n + j * nx + i] = 0.5 * (vals[n + j * nx + i] + vals[n + ju * nx + i]);
             if i + 1 == nx {
@@ -171,4 +147,16 @@ pub(crate) fn check_finite_velocity(u: &MacField) -> SceneResult<()> {
         return Err(crate::Error::NonFinite { what: "velocity", value: m }.into());
     }
     Ok(())
+}
+
+/// The index after `k` on an axis of `n` cells: wraps to 0 when `periodic`, else stays at the
+/// last cell (one-sided at a wall).
+fn next_index(k: usize, n: usize, periodic: bool) -> usize {
+    if k + 1 < n {
+        k + 1
+    } else if periodic {
+        0
+    } else {
+        k
+    }
 }
