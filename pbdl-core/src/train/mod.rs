@@ -10,7 +10,7 @@
 //! | [`log`] | [`ScalarLog`]: CSV / JSON lines / JSON array, written through without losing rows |
 //! | [`progress`] | [`Progress`]: an indicatif bar, hidden in CI and when stdout is not a terminal |
 //! | [`guard`] | [`NanGuard`]: `Error::Diverged` at the first non-finite loss or gradient norm |
-//! | [`run`] | [`TrainLoop`]: the one training loop (resume from the latest checkpoint, lr schedule, clip, NaN guard, `loss.csv`, progress, atomic checkpoints, an after-step hook; `TrainLoop::in_memory` for a fixed variable list); a method supplies its loss |
+//! | [`run`] | [`TrainLoop`]: the one training loop (resume from the latest checkpoint, lr schedule, clip, NaN guard, `loss.csv`, progress, atomic checkpoints, an after-step hook, an evaluation cadence kept out of the timings, a time budget; `TrainLoop::in_memory` for a fixed variable list); a method supplies its loss, or its whole update with `TrainLoop::run_custom` (hand-written adjoints, HIG, GANs) |
 //! | [`step`] | [`train_step`]: backward, clip, guard, update in one call |
 //!
 //! A complete loop (the optimiser and schedule come from serde configs, as in a run file):
@@ -66,6 +66,6 @@ pub use guard::NanGuard;
 pub use log::{LogFormat, LogRow, ScalarLog};
 pub use optim::{AdamConfig, AdamWConfig, Optim, OptimizerConfig, Sgd, SgdConfig};
 pub use progress::Progress;
-pub use run::{AfterStep, LoopConfig, LoopReport, NoHook, TrainLoop};
+pub use run::{AfterStep, Evaluate, Evaluation, LoopConfig, LoopReport, NoEval, NoHook, StopReason, TrainLoop, Update};
 pub use schedule::{LrScheduler, PlateauConfig, ScheduleConfig};
 pub use step::{train_step, StepInfo};

@@ -80,12 +80,33 @@ pub struct LoopConfig {
     pub clip: ClipConfig,
     /// Draw a progress bar where [`Progress::new`] would (terminal, not CI). Default `true`.
     pub progress: bool,
+    /// Stop once this many seconds of updates are spent (evaluation time not counted), after
+    /// the update that crossed it, which is evaluated and checkpointed like the last one.
+    /// `None` (the default): no time limit. For time-vs-loss comparisons at equal budget.
+    pub time_budget_seconds: Option<f64>,
 }
 
 impl Default for LoopConfig {
     fn default() -> Self {
-        Self { steps: 0, checkpoint_every: 0, dir: None, clip: ClipConfig::None, progress: true }
+        Self {
+            steps: 0,
+            checkpoint_every: 0,
+            dir: None,
+            clip: ClipConfig::None,
+            progress: true,
+            time_budget_seconds: None,
+        }
     }
+}
+
+/// Why a [`TrainLoop`] stopped.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum StopReason {
+    /// All `steps` updates are done.
+    #[default]
+    Completed,
+    /// [`LoopConfig::time_budget_seconds`] was spent first.
+    TimeBudget,
 }
 
 /// What a [`TrainLoop`] did.
@@ -95,10 +116,47 @@ pub struct LoopReport {
     pub losses: Vec<(u64, f64)>,
     /// The step the run resumed from (0 for a fresh run).
     pub resumed_from: u64,
-    /// Wall-clock seconds of the updates.
+    /// Wall-clock seconds of the updates (evaluation excluded).
     pub seconds: f64,
     /// Seconds per update.
     pub seconds_per_step: f64,
+    /// Wall-clock seconds of each update, in order.
+    pub step_seconds: Vec<f64>,
+    /// `(updates done, value)` of every [`TrainLoop::evaluate_every`] evaluation, the first
+    /// one before any update of this call.
+    pub evaluations: Vec<(u64, f64)>,
+    /// Why the run stopped.
+    pub stopped: StopReason,
+}
+
+/// What a method's own update step ([`TrainLoop::run_custom`]) reports.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Update {
+    /// The loss of this update (before it was applied).
+    pub loss: f64,
+    /// The global gradient norm, where the method computes one.
+    pub grad_norm: Option<f64>,
+    /// More scalars to log in `loss.csv` (e.g. a discriminator loss), by column name.
+    pub extra: Vec<(&'static str, f64)>,
+}
+
+impl Update {
+    /// An update with only its loss.
+    pub fn loss(loss: f64) -> Self {
+        Self { loss, grad_norm: None, extra: Vec::new() }
+    }
+
+    /// Adds the gradient norm.
+    pub fn with_grad_norm(mut self, grad_norm: f64) -> Self {
+        self.grad_norm = Some(grad_norm);
+        self
+    }
+
+    /// Adds a logged scalar `name` (a `loss.csv` column).
+    pub fn with(mut self, name: &'static str, value: f64) -> Self {
+        self.extra.push((name, value));
+        self
+    }
 }
 
 /// What a [`TrainLoop`] calls after each update ([`TrainLoop::after_step`]). Implemented by
@@ -125,9 +183,48 @@ impl<E, F: FnMut(u64, &StepInfo) -> std::result::Result<(), E>> AfterStep<E> for
     }
 }
 
+/// What a [`TrainLoop`] evaluates ([`TrainLoop::evaluate_every`]): `every` and the evaluation
+/// itself. Implemented by [`NoEval`] and by [`Evaluation`].
+pub trait Evaluate<E> {
+    /// Evaluate after this many updates done (`done` counts from 0; `last` is the run's final
+    /// update, by step count or time budget). `None`: nothing to evaluate now.
+    fn evaluate(&mut self, done: u64, last: bool) -> std::result::Result<Option<f64>, E>;
+}
+
+/// The evaluation of a [`TrainLoop`] without [`TrainLoop::evaluate_every`]: none.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct NoEval;
+
+impl<E> Evaluate<E> for NoEval {
+    fn evaluate(&mut self, _done: u64, _last: bool) -> std::result::Result<Option<f64>, E> {
+        Ok(None)
+    }
+}
+
+/// An evaluation every `every` updates, at the start and after the last update
+/// ([`TrainLoop::evaluate_every`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Evaluation<F> {
+    every: u64,
+    start: u64,
+    eval: F,
+}
+
+impl<E, F: FnMut(u64) -> std::result::Result<f64, E>> Evaluate<E> for Evaluation<F> {
+    fn evaluate(&mut self, done: u64, last: bool) -> std::result::Result<Option<f64>, E> {
+        let due = done == self.start || last || (self.every > 0 && done % self.every == 0);
+        if due {
+            (self.eval)(done).map(Some)
+        } else {
+            Ok(None)
+        }
+    }
+}
+
 /// A training run over the variables of one `VarMap`, resumed from its run directory; `H` is
-/// the [`TrainLoop::after_step`] hook ([`NoHook`] by default).
-pub struct TrainLoop<'a, H = NoHook> {
+/// the [`TrainLoop::after_step`] hook ([`NoHook`] by default), `V` the
+/// [`TrainLoop::evaluate_every`] evaluation ([`NoEval`] by default).
+pub struct TrainLoop<'a, H = NoHook, V = NoEval> {
     /// `None` for [`TrainLoop::in_memory`].
     varmap: Option<&'a VarMap>,
     cfg: LoopConfig,
@@ -135,9 +232,10 @@ pub struct TrainLoop<'a, H = NoHook> {
     /// `Some` for [`TrainLoop::in_memory`]; otherwise the `VarMap`'s variables.
     vars: Option<Vec<Var>>,
     hook: H,
+    eval: V,
 }
 
-impl<H> std::fmt::Debug for TrainLoop<'_, H> {
+impl<H, V> std::fmt::Debug for TrainLoop<'_, H, V> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("TrainLoop")
             .field("cfg", &self.cfg)
@@ -157,13 +255,14 @@ impl<'a> TrainLoop<'a> {
                 start = load_varmap(&path, varmap)?.step;
             }
         }
-        Ok(Self { varmap: Some(varmap), cfg, start, vars: None, hook: NoHook })
+        Ok(Self { varmap: Some(varmap), cfg, start, vars: None, hook: NoHook, eval: NoEval })
     }
 
     /// Opens an in-memory run over `vars`, variables kept outside any `VarMap` (a hand-built
     /// network, a frozen part left out), trained in this order (the order the gradient norm
     /// sums in; `VarMap::all_vars` has no fixed one). It starts at step 0, writes no files and
-    /// no checkpoints: `cfg.dir` must be `None`.
+    /// no checkpoints: `cfg.dir` must be `None`. With [`TrainLoop::run_custom`] the list may be
+    /// empty (the method updates its own parameters).
     pub fn in_memory(vars: Vec<Var>, cfg: LoopConfig) -> Result<Self> {
         if let Some(dir) = &cfg.dir {
             return Err(crate::Error::invalid(
@@ -172,11 +271,11 @@ impl<'a> TrainLoop<'a> {
                 format!("an in-memory run writes no files; got {}, use TrainLoop::resume with a VarMap", dir.display()),
             ));
         }
-        Ok(Self { varmap: None, cfg, start: 0, vars: Some(vars), hook: NoHook })
+        Ok(Self { varmap: None, cfg, start: 0, vars: Some(vars), hook: NoHook, eval: NoEval })
     }
 }
 
-impl<'a, H> TrainLoop<'a, H> {
+impl<'a, H, V> TrainLoop<'a, H, V> {
     /// The first step this run will take (the resumed checkpoint's step, or 0). Seed per-run
     /// random streams from it so that a resumed run does not replay the same batches.
     pub fn start(&self) -> u64 {
@@ -187,11 +286,25 @@ impl<'a, H> TrainLoop<'a, H> {
     /// progress bar and the checkpoint of that step, which so holds the hooked weights): clamp
     /// or project weights, recalibrate, collect [`StepInfo::grad_norm`]. An error from the hook
     /// stops the run with that error. Replaces an earlier hook.
-    pub fn after_step<E, F>(self, hook: F) -> TrainLoop<'a, F>
+    pub fn after_step<E, F>(self, hook: F) -> TrainLoop<'a, F, V>
     where
         F: FnMut(u64, &StepInfo) -> std::result::Result<(), E>,
     {
-        TrainLoop { varmap: self.varmap, cfg: self.cfg, start: self.start, vars: self.vars, hook }
+        TrainLoop { varmap: self.varmap, cfg: self.cfg, start: self.start, vars: self.vars, hook, eval: self.eval }
+    }
+
+    /// Evaluates `eval(updates_done)` before the first update, every `every` updates and after
+    /// the last one (`every = 0`: only first and last). The evaluation's time is not counted in
+    /// the step timings or the time budget; its value goes to [`LoopReport::evaluations`] and
+    /// to the `eval` column of `loss.csv`. A non-finite value stops the run with
+    /// [`crate::Error::Diverged`] (at step = updates done, quantity `eval`). Replaces an
+    /// earlier evaluation.
+    pub fn evaluate_every<E, F>(self, every: u64, eval: F) -> TrainLoop<'a, H, Evaluation<F>>
+    where
+        F: FnMut(u64) -> std::result::Result<f64, E>,
+    {
+        let eval = Evaluation { every, start: self.start, eval };
+        TrainLoop { varmap: self.varmap, cfg: self.cfg, start: self.start, vars: self.vars, hook: self.hook, eval }
     }
 
     /// Runs the updates `start..steps`: at each, sets the learning rate `lr_at(step)`, asks
@@ -209,6 +322,7 @@ impl<'a, H> TrainLoop<'a, H> {
     ) -> std::result::Result<LoopReport, E>
     where
         H: AfterStep<E>,
+        V: Evaluate<E>,
     {
         let vars = match (self.vars.take(), self.varmap) {
             (Some(vars), _) => vars,
@@ -216,6 +330,79 @@ impl<'a, H> TrainLoop<'a, H> {
             (None, None) => Vec::new(),
         };
         let mut opt = optimizer.build(vars.clone())?;
+        let clip = self.cfg.clip;
+        let mut no_extra = Vec::new();
+        self.drive(meta, &mut no_extra, |step, guard, _| {
+            opt.set_learning_rate(lr_at(step));
+            let l = loss_at(step)?;
+            Ok(train_step(step, &l, &mut opt, &vars, &clip, guard)?)
+        })
+    }
+
+    /// Runs the updates `start..steps` with the method's own update: `update(step, lr_at(step))`
+    /// computes the loss and its gradient and applies the update itself (hand-written adjoints,
+    /// second-order updates, a generator and a discriminator step). Everything else is as in
+    /// [`TrainLoop::run`]: resume, time budget, evaluation, `loss.csv` (with the update's
+    /// extra columns), hook, progress and checkpoints (of the `VarMap`, where there is one).
+    /// The configured clipping is not applied (the method clips its own gradient). A
+    /// non-finite loss or gradient norm stops the run with [`crate::Error::Diverged`] before
+    /// that step is logged or checkpointed; an update should not apply a non-finite step (its
+    /// parameters are not rolled back).
+    ///
+    /// ```
+    /// use pbdl_core::train::{LoopConfig, TrainLoop, Update};
+    /// use pbdl_core::io::CheckpointMeta;
+    ///
+    /// // Gradient descent on (w - 3)^2 by hand, evaluated every 10 updates.
+    /// let mut w = 0.0f64;
+    /// let cfg = LoopConfig { steps: 50, progress: false, ..Default::default() };
+    /// let w_cell = std::cell::Cell::new(0.0);
+    /// let report = TrainLoop::in_memory(Vec::new(), cfg)?
+    ///     .evaluate_every(10, |_| -> pbdl_core::Result<f64> { Ok((w_cell.get() - 3.0f64).abs()) })
+    ///     .run_custom::<pbdl_core::Error>(|_| 0.1, CheckpointMeta::at, |_, lr| {
+    ///         let grad = 2.0 * (w - 3.0);
+    ///         let loss = (w - 3.0) * (w - 3.0);
+    ///         w -= lr * grad;
+    ///         w_cell.set(w);
+    ///         Ok(Update::loss(loss).with_grad_norm(grad.abs()))
+    ///     })?;
+    /// assert_eq!(report.losses.len(), 50);
+    /// assert_eq!(report.evaluations.iter().map(|e| e.0).collect::<Vec<_>>(), [0, 10, 20, 30, 40, 50]);
+    /// assert!(report.evaluations[5].1 < 1e-4);
+    /// # Ok::<(), pbdl_core::Error>(())
+    /// ```
+    pub fn run_custom<E: From<crate::Error>>(
+        self,
+        lr_at: impl Fn(u64) -> f64,
+        meta: impl Fn(u64) -> CheckpointMeta,
+        mut update: impl FnMut(u64, f64) -> std::result::Result<Update, E>,
+    ) -> std::result::Result<LoopReport, E>
+    where
+        H: AfterStep<E>,
+        V: Evaluate<E>,
+    {
+        let mut extra = Vec::new();
+        self.drive(meta, &mut extra, |step, guard, extra| {
+            let lr = lr_at(step);
+            let u = update(step, lr)?;
+            guard.check(step, u.loss, u.grad_norm)?;
+            *extra = u.extra;
+            Ok(StepInfo { step, loss: u.loss, grad_norm: u.grad_norm.unwrap_or(f64::NAN), lr })
+        })
+    }
+
+    /// The frame around one update `step_once(step, guard, extra columns)`: resume point,
+    /// evaluation, time budget, log row, hook, progress, checkpoint (see [`TrainLoop::run`]).
+    fn drive<E: From<crate::Error>>(
+        mut self,
+        meta: impl Fn(u64) -> CheckpointMeta,
+        extra: &mut Vec<(&'static str, f64)>,
+        mut step_once: impl FnMut(u64, &mut NanGuard, &mut Vec<(&'static str, f64)>) -> std::result::Result<StepInfo, E>,
+    ) -> std::result::Result<LoopReport, E>
+    where
+        H: AfterStep<E>,
+        V: Evaluate<E>,
+    {
         let mut guard = NanGuard::new();
         let mut log = None;
         if let Some(dir) = &self.cfg.dir {
@@ -223,34 +410,62 @@ impl<'a, H> TrainLoop<'a, H> {
             std::fs::create_dir_all(dir).map_err(|e| crate::Error::io(dir, e))?;
             log = Some(ScalarLog::open(dir.join("loss.csv"))?);
         }
+        let mut report = LoopReport { resumed_from: self.start, ..Default::default() };
+        let no_updates_left = self.start >= self.cfg.steps;
+        if let Some(v) = self.eval.evaluate(self.start, no_updates_left)? {
+            guard.check_value(self.start, "eval", v)?;
+            report.evaluations.push((self.start, v));
+        }
         let progress = if self.cfg.progress { Progress::new(self.cfg.steps) } else { Progress::hidden(self.cfg.steps) };
-        let t0 = Instant::now();
-        let mut losses = Vec::new();
+        let budget = self.cfg.time_budget_seconds.unwrap_or(f64::INFINITY);
+        let mut train_seconds = 0.0;
+        let mut row: Vec<(&str, f64)> = Vec::new();
         for step in self.start..self.cfg.steps {
-            opt.set_learning_rate(lr_at(step));
-            let l = loss_at(step)?;
-            let info = train_step(step, &l, &mut opt, &vars, &self.cfg.clip, &mut guard)?;
-            losses.push((step, info.loss));
+            extra.clear();
+            let t = Instant::now();
+            let info = step_once(step, &mut guard, extra)?;
+            let dt = t.elapsed().as_secs_f64();
+            train_seconds += dt;
+            report.step_seconds.push(dt);
+            report.losses.push((step, info.loss));
+            let done = step + 1;
+            let out_of_time = train_seconds >= budget;
+            let last = done == self.cfg.steps || out_of_time;
+            let evaluated = self.eval.evaluate(done, last)?;
+            if let Some(v) = evaluated {
+                guard.check_value(done, "eval", v)?;
+                report.evaluations.push((done, v));
+            }
             if let Some(log) = log.as_mut() {
-                log.log(
-                    step,
-                    &[("loss", info.loss), ("grad_norm", info.grad_norm), ("seconds", t0.elapsed().as_secs_f64())],
-                )?;
+                row.clear();
+                row.push(("loss", info.loss));
+                if info.grad_norm.is_finite() {
+                    row.push(("grad_norm", info.grad_norm));
+                }
+                row.push(("seconds", train_seconds));
+                row.extend(extra.iter().copied());
+                if let Some(v) = evaluated {
+                    row.push(("eval", v));
+                }
+                log.log(step, &row)?;
             }
             self.hook.after_step(step, &info)?;
             progress.update(step, info.loss);
-            let done = step + 1 == self.cfg.steps;
             if let (Some(dir), Some(varmap)) = (&self.cfg.dir, self.varmap) {
                 let every = self.cfg.checkpoint_every;
-                if done || (every > 0 && (step + 1) % every == 0) {
-                    save_varmap(dir.join(format!("step-{}", step + 1)), varmap, &meta(step + 1))?;
+                if last || (every > 0 && done % every == 0) {
+                    save_varmap(dir.join(format!("step-{done}")), varmap, &meta(done))?;
                 }
+            }
+            if out_of_time && done < self.cfg.steps {
+                report.stopped = StopReason::TimeBudget;
+                break;
             }
         }
         progress.finish();
-        let seconds = t0.elapsed().as_secs_f64();
-        let n = losses.len().max(1) as f64;
-        Ok(LoopReport { losses, resumed_from: self.start, seconds, seconds_per_step: seconds / n })
+        report.seconds = train_seconds;
+        report.seconds_per_step = train_seconds / report.losses.len().max(1) as f64;
+        Ok(report)
     }
 }
 
@@ -354,5 +569,80 @@ mod tests {
         // An in-memory run has nowhere to checkpoint.
         let with_dir = LoopConfig { dir: Some(std::env::temp_dir()), ..Default::default() };
         assert!(matches!(TrainLoop::in_memory(vec![wv], with_dir), Err(crate::Error::InvalidArgument { .. })));
+    }
+
+    /// A custom update: the loop logs its extra columns and the evaluations (first, every 4th,
+    /// last), checkpoints the VarMap, and a time budget stops the run after the crossing update,
+    /// which is evaluated and checkpointed.
+    #[test]
+    fn custom_update_with_evaluation_extra_columns_and_time_budget() {
+        let dir = std::env::temp_dir().join(format!("pbdl_train_loop_custom_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let varmap = VarMap::new();
+        let w = varmap.get(1, "w", Init::Const(0.0), DType::F64, &Device::Cpu).unwrap();
+        let wv = Var::from_tensor(&w).unwrap();
+        let value = || w.to_vec1::<f64>().unwrap()[0];
+        let cfg = LoopConfig {
+            steps: 10,
+            checkpoint_every: 0,
+            dir: Some(dir.clone()),
+            progress: false,
+            ..Default::default()
+        };
+        // Gradient descent on (w - 1)^2 by hand at lr 0.25: w_k = 1 - 0.5^k.
+        let update = |_: u64, lr: f64| -> Result<Update> {
+            let wk = value();
+            let grad = 2.0 * (wk - 1.0);
+            wv.set(&Tensor::new(&[wk - lr * grad], &Device::Cpu)?)?;
+            Ok(Update::loss((wk - 1.0).powi(2)).with_grad_norm(grad.abs()).with("w", wk))
+        };
+        let report = TrainLoop::resume(&varmap, cfg.clone())
+            .unwrap()
+            .evaluate_every(4, |done| -> Result<f64> { Ok(done as f64 + value()) })
+            .run_custom::<crate::Error>(|_| 0.25, CheckpointMeta::at, update)
+            .unwrap();
+        assert_eq!(report.stopped, StopReason::Completed);
+        assert_eq!(report.losses.len(), 10);
+        assert_eq!(report.step_seconds.len(), 10);
+        assert!((value() - (1.0 - 0.5f64.powi(10))).abs() < 1e-15);
+        let evals: Vec<u64> = report.evaluations.iter().map(|e| e.0).collect();
+        assert_eq!(evals, [0, 4, 8, 10]);
+        assert!((report.evaluations[1].1 - (4.0 + 1.0 - 0.5f64.powi(4))).abs() < 1e-15);
+        let log = ScalarLog::read(dir.join("loss.csv")).unwrap();
+        assert_eq!(log.column("w").len(), 10);
+        assert!((log.column("w")[2].1 - 0.75).abs() < 1e-15, "w before update 2");
+        assert_eq!(log.column("eval").iter().map(|e| e.0).collect::<Vec<_>>(), [3, 7, 9], "logged on the update's row");
+        assert_eq!(latest_checkpoint(&dir).unwrap().unwrap(), dir.join("step-10.safetensors"));
+
+        // A budget of zero seconds: the first update crosses it, is evaluated and checkpointed.
+        std::fs::remove_dir_all(&dir).ok();
+        let budget = LoopConfig { steps: 10, time_budget_seconds: Some(0.0), ..cfg.clone() };
+        let report = TrainLoop::resume(&varmap, budget)
+            .unwrap()
+            .evaluate_every(4, |done| -> Result<f64> { Ok(done as f64) })
+            .run_custom::<crate::Error>(|_| 0.25, CheckpointMeta::at, update)
+            .unwrap();
+        assert_eq!(report.stopped, StopReason::TimeBudget);
+        assert_eq!(report.losses.len(), 1);
+        assert_eq!(report.evaluations, [(0, 0.0), (1, 1.0)]);
+        assert_eq!(latest_checkpoint(&dir).unwrap().unwrap(), dir.join("step-1.safetensors"));
+
+        // A non-finite reported loss or evaluation stops the run with Diverged at that step.
+        std::fs::remove_dir_all(&dir).ok();
+        let e = TrainLoop::in_memory(Vec::new(), LoopConfig { steps: 10, progress: false, ..Default::default() })
+            .unwrap()
+            .run_custom::<crate::Error>(
+                |_| 0.1,
+                CheckpointMeta::at,
+                |step, _| Ok(Update::loss(if step == 3 { f64::NAN } else { 1.0 })),
+            )
+            .unwrap_err();
+        assert!(matches!(e, crate::Error::Diverged { step: 3, .. }), "{e}");
+        let e = TrainLoop::in_memory(Vec::new(), LoopConfig { steps: 10, progress: false, ..Default::default() })
+            .unwrap()
+            .evaluate_every(2, |done| -> Result<f64> { Ok(if done == 4 { f64::INFINITY } else { 0.0 }) })
+            .run_custom::<crate::Error>(|_| 0.1, CheckpointMeta::at, |_, _| Ok(Update::loss(1.0)))
+            .unwrap_err();
+        assert!(matches!(&e, crate::Error::Diverged { step: 4, quantity, .. } if quantity == "eval"), "{e}");
     }
 }

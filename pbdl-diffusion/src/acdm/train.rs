@@ -175,6 +175,7 @@ pub fn train(model: &Model, seqs: &[Tensor], config: &TrainConfig, dir: Option<&
         dir: dir.map(Path::to_path_buf),
         clip: ClipConfig::Norm { max_norm: config.clip_norm },
         progress: true,
+        time_budget_seconds: None,
     };
     let run = TrainLoop::resume(model.varmap(), loop_cfg)?;
     // A resumed run draws other windows than the first pass did.
@@ -195,6 +196,6 @@ pub fn train(model: &Model, seqs: &[Tensor], config: &TrainConfig, dir: Option<&
             loss(model, &w, rng.random())
         },
     )?;
-    let LoopReport { losses, resumed_from, seconds, seconds_per_step } = report;
+    let LoopReport { losses, resumed_from, seconds, seconds_per_step, .. } = report;
     Ok(TrainReport { losses, resumed_from, seconds, seconds_per_step })
 }

@@ -14,9 +14,11 @@ use crate::physics::{Batch, Dataset, Physics};
 use candle_core::{Device, Tensor, Var};
 use candle_nn::Optimizer;
 use faer::{MatRef, Par};
-use pbdl_core::train::{AdamConfig, Optim, OptimizerConfig};
+use pbdl_core::io::CheckpointMeta;
+use pbdl_core::train::{AdamConfig, LoopConfig, Optim, OptimizerConfig, TrainLoop, Update as LoopUpdate};
 use rayon::prelude::*;
 use std::any::Any;
+use std::cell::RefCell;
 use std::time::Instant;
 
 /// Checks that `net`, `physics` and `batch` fit together and runs the network on the batch.
@@ -475,10 +477,6 @@ pub fn run_curve_with_loss<M: JacobianModel + ?Sized>(
     if batch == 0 || batch > train.len {
         return Err(Error::shape("batch size", format!("1..={}", train.len), batch));
     }
-    let mut curve = Curve::default();
-    curve.seconds.push(0.0);
-    curve.steps.push(0);
-    curve.loss.push(evaluate_with_loss(&*net, physics, loss, eval)?);
     let mut hig = match method {
         Method::Hig(cfg) => Some(HigTrainer::new(cfg)?.with_loss(loss)),
         Method::Adam { .. } => None,
@@ -488,38 +486,51 @@ pub fn run_curve_with_loss<M: JacobianModel + ?Sized>(
         Method::Hig(_) => None,
     };
     let n_batches = train.len / batch;
-    let mut elapsed = 0.0;
-    let mut step = 0u64;
-    while elapsed < budget.seconds && step < budget.max_steps {
-        let b = train.batch((step as usize % n_batches) * batch, batch);
-        let t = Instant::now();
-        let result = match (&mut hig, &mut adam) {
-            (Some(h), _) => h.step(net, physics, b),
-            (_, Some(a)) => a.step(net, physics, b),
-            _ => unreachable!("one trainer is set"),
-        };
-        match result {
-            Ok(_) => {}
-            Err(Error::Diverged { .. }) => {
-                curve.diverged_at = Some(step);
-                return Ok(curve);
+    // The curve is filled as the run goes, so that a diverged run keeps what came before.
+    let curve = RefCell::new(Curve::default());
+    let net = RefCell::new(net);
+    let cfg = LoopConfig {
+        steps: budget.max_steps,
+        progress: false,
+        time_budget_seconds: budget.seconds.is_finite().then_some(budget.seconds),
+        ..Default::default()
+    };
+    let result = TrainLoop::in_memory(Vec::new(), cfg)?
+        .evaluate_every(eval_every.max(1), |done| -> Result<f64> {
+            let value = evaluate_with_loss(&**net.borrow(), physics, loss, eval)?;
+            if value.is_finite() {
+                let mut c = curve.borrow_mut();
+                let elapsed = c.step_seconds.iter().sum();
+                c.seconds.push(elapsed);
+                c.steps.push(done);
+                c.loss.push(value);
             }
-            Err(e) => return Err(e),
+            Ok(value)
+        })
+        .run_custom::<Error>(
+            |_| 0.0,
+            CheckpointMeta::at,
+            |step, _| {
+                let b = train.batch((step as usize % n_batches) * batch, batch);
+                let net = &mut **net.borrow_mut();
+                let t = Instant::now();
+                let info = match (&mut hig, &mut adam) {
+                    (Some(h), _) => h.step(net, physics, b)?,
+                    (_, Some(a)) => a.step(net, physics, b)?,
+                    _ => unreachable!("one trainer is set"),
+                };
+                curve.borrow_mut().step_seconds.push(t.elapsed().as_secs_f64());
+                Ok(LoopUpdate::loss(info.loss))
+            },
+        );
+    let mut curve = curve.into_inner();
+    match result {
+        Ok(_) => Ok(curve),
+        // A non-finite training loss (before its update) or evaluation loss (after one).
+        Err(Error::Diverged { step, .. }) | Err(Error::Core(pbdl_core::Error::Diverged { step, .. })) => {
+            curve.diverged_at = Some(step);
+            Ok(curve)
         }
-        let dt = t.elapsed().as_secs_f64();
-        curve.step_seconds.push(dt);
-        elapsed += dt;
-        step += 1;
-        if step % eval_every.max(1) == 0 || elapsed >= budget.seconds || step >= budget.max_steps {
-            let value = evaluate_with_loss(&*net, physics, loss, eval)?;
-            if !value.is_finite() {
-                curve.diverged_at = Some(step);
-                return Ok(curve);
-            }
-            curve.seconds.push(elapsed);
-            curve.steps.push(step);
-            curve.loss.push(value);
-        }
+        Err(e) => Err(e),
     }
-    Ok(curve)
 }
