@@ -8,7 +8,7 @@
 //! | [`data`] | sequence datasets: [`data::SequenceSource`] (in memory or streamed from `.npz` shards), seeded splits, random training windows, generate-once caching |
 //! | [`error`] | the crate's [`Error`] enum and shape/dtype/finiteness checks |
 //! | [`real`] | the [`Real`] float trait (`f32`, `f64`) that kernels are generic over |
-//! | [`noise`] | seeded noise: independent streams of one seed ([`noise::stream_seed`]), smooth periodic power-law fields ([`noise::power_law_noise`]) |
+//! | [`noise`] | seeded noise: independent streams of one seed ([`noise::stream_seed`]), smooth periodic power-law fields ([`noise::power_law_noise`]), periodic Perlin gradient noise ([`noise::perlin_1d`], [`noise::perlin_2d`]) |
 //! | [`op`] | a toolkit for differentiable candle custom ops (forward + backward in one place) |
 //! | [`grad_check`] | [`check_grad`] (central finite differences) and gradient-presence checks |
 //! | [`seed`] | seeded random tensors: same seed, same numbers |

@@ -1,10 +1,11 @@
 //! Seeded noise for initial conditions, data generation and samplers: independent streams from
-//! one seed, and smooth periodic random fields.
+//! one seed, and smooth periodic random fields (spectral, whole tensors; Perlin, point by point).
 //!
 //! | function | what it gives |
 //! |---|---|
 //! | [`stream_seed`] | the seed of stream `k` of a run seed (SplitMix64 finaliser): sampler steps, batch chunks and data items that must not share random numbers |
 //! | [`power_law_noise`] | a periodic random field with Fourier amplitudes `1 / k^2` above a cut (PhiFlow's `Noise(smoothness=1)`), zero mean and unit variance per batch entry |
+//! | [`perlin_1d`], [`perlin_2d`] | seeded periodic Perlin gradient noise, evaluated point by point in lattice units (the particle noise scenes' initial density and velocity) |
 //!
 //! Plain Gaussian and uniform tensors are [`crate::seed::randn`] and [`crate::seed::rand_uniform`].
 //!
@@ -18,6 +19,10 @@
 //! assert!((var - 1.0).abs() < 1e-9);
 //! # Ok::<(), pbdl_core::Error>(())
 //! ```
+
+mod perlin;
+
+pub use perlin::{perlin_1d, perlin_2d};
 
 use crate::Result;
 use candle_core::{DType, Device, Tensor};

@@ -1,12 +1,12 @@
 //! Building a scene: [`Scene::build`] / [`Scene::build_as`] and one builder per section.
 
-use super::noise::{perlin1, perlin2};
 use super::{scene_err, DamBreakScene, DamSolver, InitState, Periodic1dScene, Periodic2dScene, Scene, Stepper};
 use crate::error::{Error, Result};
 use crate::iisph::Iisph;
 use crate::neighbors::Domain;
 use crate::sph1d::Sph1d;
 use crate::wcsph::{Wcsph, WcsphPhysics};
+use pbdl_core::noise::{perlin_1d, perlin_2d};
 use pbdl_core::Real;
 
 impl Scene {
@@ -207,7 +207,7 @@ fn build_periodic_1d<T: Real>(
                 let mut s = 0.0;
                 for o in 0..p.octaves {
                     let cells = p.base_cells << o;
-                    s += 0.5f64.powi(o as i32) * perlin1(seed, o as u64, (x - p.x_lo) / len * cells as f64, cells);
+                    s += 0.5f64.powi(o as i32) * perlin_1d(seed, o as u64, (x - p.x_lo) / len * cells as f64, cells);
                 }
                 s
             };
@@ -285,7 +285,7 @@ fn build_periodic_2d<T: Real>(
                 for o in 0..p.octaves {
                     let cells = p.base_cells << o;
                     let c = cells as f64 / l;
-                    s += 0.5f64.powi(o as i32) * perlin2(seed, o as u64, [x[0] * c, x[1] * c], cells);
+                    s += 0.5f64.powi(o as i32) * perlin_2d(seed, o as u64, [x[0] * c, x[1] * c], cells);
                 }
                 s
             };

@@ -32,14 +32,12 @@
 //! |---|---|
 //! | `mod.rs` | the serde scene types ([`Scene`], its sections, [`Precision`]) and loading ([`Scene::load`], [`Scene::builtin`]) |
 //! | `init.rs` | [`InitState`]: initial particles read from `.npz` arrays (`--init`) |
-//! | `build.rs` | [`Scene::build`] / [`Scene::build_as`]: the solvers built from the sections |
+//! | `build.rs` | [`Scene::build`] / [`Scene::build_as`]: the solvers built from the sections (the noise scenes' Perlin noise is [`pbdl_core::noise::perlin_1d`] / [`perlin_2d`](pbdl_core::noise::perlin_2d)) |
 //! | `stepper.rs` | [`Stepper`] (one of the solvers; implements [`Evolve`](pbdl_core::stepper::Evolve)), [`Frame`], [`run_frames`] |
-//! | `noise.rs` | the seeded periodic Perlin noise of the noise scenes |
 //! | `output.rs` | [`write_trajectory`]: `.npz` and, with the `viz` feature, PNG/GIF renders |
 
 mod build;
 mod init;
-mod noise;
 mod output;
 mod stepper;
 
