@@ -16,7 +16,7 @@
 //! | [`pressure`] | [`PressureSolver`] (FFT when periodic, sparse Cholesky factored once otherwise), [`pressure::make_incompressible`], [`pressure::solve_poisson`] |
 //! | [`time_stepping`] | [`ButcherTableau`] as data (RK4, SSP-RK3, forward Euler), [`time_stepping::projected_runge_kutta`] |
 //! | [`stability`] | [`stability::stable_time_step`], [`stability::check_time_step`] (typed [`Error::Unstable`]) |
-//! | [`burgers`] | [`burgers::ScalarLaw`]: periodic 1D/2D viscous Burgers and advection-diffusion (conservative, second order, differentiable), [`burgers::cole_hopf_sine`] |
+//! | [`scalar_law`] | [`scalar_law::ScalarLaw`]: periodic 1D/2D viscous Burgers and advection-diffusion (conservative, second order, differentiable), [`scalar_law::cole_hopf_sine`] |
 //! | [`scene`] | [`scene::Scene`]: TOML scenes (embedded defaults), built into a [`scene::Simulation`] that holds only the operators the scene needs (one file per physics kind behind one trait) |
 //! | [`obstacle`] | [`Obstacle`] (cylinder, box), [`ObstacleMask`]; masked projection in [`pressure::make_incompressible_masked`] |
 //! | [`forcing`] | [`forcing::buoyancy`] (Boussinesq), [`forcing::DensitySource`], [`forcing::VelocitySource`] |
@@ -24,7 +24,7 @@
 //! | [`navier_stokes`] | [`NavierStokes`]: a stepper built from a config, listing its operators; a [`pbdl_core::stepper::Stepper`] (as are [`Fluid`] and [`grid3d::NavierStokes3d`]) |
 //! | [`grid3d`] | 3D: [`grid3d::MacField3d`], flux-form advection, FFT projection (periodic) and MIC(0)-CG projection (walled box, [`grid3d::Cavity3d`]), [`grid3d::NavierStokes3d`] (RK4, projection per stage), the ABC exact solution |
 //! | [`error`] | [`Error`], [`Result`] |
-//! | [`diagnostics`] | kinetic energy, relative divergence, Strouhal number by zero crossings, [`diagnostics::track_invariants`] (first step at which an invariant breaks) |
+//! | [`diagnostics`] | kinetic energy, relative divergence, Strouhal number by zero crossings ([`diagnostics::strouhal_zero_crossings`]) or spectral peak ([`diagnostics::strouhal_spectral_peak`], [`diagnostics::dominant_frequency`]), [`diagnostics::track_invariants`] (first step at which an invariant breaks) |
 //! | [`validation`] | published reference data: Ghia et al. (1982) cavity centrelines ([`validation::GhiaTable`], [`validation::cavity_centrelines`]) |
 //!
 //! Conventions: tensors `[batch, channel, ny, nx]`, x fastest, `f32` or `f64`. A MAC velocity has
@@ -46,7 +46,6 @@
 
 pub mod advect;
 pub mod boundary;
-pub mod burgers;
 pub mod diagnostics;
 pub mod diffuse;
 pub mod domain;
@@ -62,6 +61,7 @@ pub mod navier_stokes;
 pub mod obstacle;
 mod pad;
 pub mod pressure;
+pub mod scalar_law;
 pub mod scene;
 mod scratch;
 pub mod stability;

@@ -8,7 +8,7 @@
 
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::{check_grad, GradCheckOptions};
-use pbdl_grid::burgers::{cole_hopf_sine, ScalarLaw};
+use pbdl_grid::scalar_law::{cole_hopf_sine, ScalarLaw};
 use pbdl_grid::ButcherTableau;
 use std::f64::consts::PI;
 

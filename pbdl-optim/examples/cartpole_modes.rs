@@ -1,4 +1,4 @@
-//! The stabilized-BPTT cart-pole experiment at the paper's length on the fast `f64` path:
+//! The stabilized-BPTT cart-pole experiment at the paper's length on the hand-written adjoint `f64` path:
 //! modes x poles x clipping, Adam lr 1e-3, b = 8, 256 train / 256 test episodes, seed 42,
 //! epochs of 32 steps. Appends one JSON object per run to `--out` (JSON lines, so an
 //! interrupted sweep keeps its finished runs) and prints a table at the end.
@@ -14,7 +14,7 @@
 
 use pbdl_core::train::ClipConfig;
 use pbdl_optim::bptt::GradientMode;
-use pbdl_optim::cartpole::{fast, CartPoleConfig};
+use pbdl_optim::cartpole::{adjoint, CartPoleConfig};
 use std::io::Write;
 
 struct Args {
@@ -78,7 +78,7 @@ fn parse() -> Result<Args, String> {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let args = parse()?;
     let mut table = Vec::new();
     for (clip_name, clip) in &args.clips {
@@ -92,7 +92,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 cfg.seed = args.seed;
                 let label = format!("nc{poles} {mode:?} clip={clip_name} seed={}", cfg.seed);
                 let t = std::time::Instant::now();
-                let run = fast::train_with(&cfg, &mut |step, loss| {
+                let run = adjoint::train_with(&cfg, &mut |step, loss| {
                     println!("{label} epoch {:>5} test loss {loss:.5}", step / steps_per_epoch);
                 })?;
                 let total = t.elapsed().as_secs_f64();

@@ -18,9 +18,9 @@
 //!
 //! [`train`] runs one configuration (gradient mode, clipping, Adam) and returns the test loss
 //! over training; the bench entry `cartpole` compares modes F, P and C for `NC = 1..4`.
-//! [`fast`] is the same experiment with a hand-written adjoint (the paper-length runs).
+//! [`adjoint`] is the same experiment with a hand-written adjoint (the paper-length runs).
 
-pub mod fast;
+pub mod adjoint;
 
 use crate::bptt::Rollout;
 pub use crate::controller::DenseController;

@@ -8,7 +8,7 @@
 //! | [`mlp`] | a dense `f64` network with exact per-sample Jacobian rows ([`mlp::Mlp`]) |
 //! | [`physics`] | (also [`physics::StepperPhysics`]: HIG on any differentiable tensor stepper, Jacobians by backprop) the [`physics::Physics`] trait (forward + exact Jacobian) and the experiments' physics: linear chain, nonlinear oscillators (RK4), Poisson 8x8, quantum dipole (Crank-Nicolson) |
 //! | [`bptt`] | stabilized BPTT: gradient modes F, P, S, C for any candle rollout, with value / global-norm clipping, and the Adam training loop the experiments share ([`bptt::train`]) |
-//! | [`cartpole`] | cart-pole with 1..N poles, differentiable in candle, and the stabilized-BPTT training run on it |
+//! | [`cartpole`] | cart-pole with 1..N poles, differentiable in candle, and the stabilized-BPTT training run on it; [`cartpole::adjoint`]: the same run with a hand-written `f64` adjoint (paper-length runs) |
 //! | [`controller`] | [`controller::DenseController`]: the dense tanh controller of the BPTT experiments |
 //! | [`guidance`] | guidance by repulsion (drivers herd evaders), differentiable in candle, and its stabilized-BPTT run |
 //! | [`quantum_control`] | a particle in a box steered into eigenstate 3-5 (Crank-Nicolson custom op with adjoint), and its stabilized-BPTT run |

@@ -4,7 +4,7 @@
 use super::data::{cell_of, CylinderConfig, DIAMETER, INFLOW, PROBE};
 use crate::{Error, Result};
 use candle_core::{DType, Tensor};
-use realfft::RealFftPlanner;
+use pbdl_grid::diagnostics::strouhal_spectral_peak;
 
 /// Mean squared error of two equally shaped tensors.
 pub fn mse(a: &Tensor, b: &Tensor) -> Result<f64> {
@@ -32,45 +32,6 @@ pub fn mean(x: &[f64]) -> f64 {
     x.iter().sum::<f64>() / x.len() as f64
 }
 
-/// The dominant frequency of a signal sampled every `dt`: the mean is removed, a Hann window
-/// applied, the series zero-padded 16x, and the peak of the amplitude spectrum (ignoring the
-/// lowest bin) refined by a parabola through its neighbours. NaN for a constant signal.
-pub fn dominant_frequency(signal: &[f64], dt: f64) -> f64 {
-    let n = signal.len();
-    if n < 8 {
-        return f64::NAN;
-    }
-    let m = mean(signal);
-    let pad = (16 * n).next_power_of_two();
-    let mut buf = vec![0.0f64; pad];
-    for (k, &x) in signal.iter().enumerate() {
-        let w = 0.5 - 0.5 * (2.0 * std::f64::consts::PI * k as f64 / (n - 1) as f64).cos();
-        buf[k] = (x - m) * w;
-    }
-    let fft = RealFftPlanner::<f64>::new().plan_fft_forward(pad);
-    let mut spec = fft.make_output_vec();
-    if fft.process(&mut buf, &mut spec).is_err() {
-        return f64::NAN;
-    }
-    let amp: Vec<f64> = spec.iter().map(|c| c.norm()).collect();
-    // Skip the band below one cycle per record (window leakage of the removed mean).
-    let lo = (pad / n).max(1) * 2;
-    let (mut best, mut arg) = (0.0, 0);
-    for (k, &a) in amp.iter().enumerate().skip(lo) {
-        if a > best {
-            best = a;
-            arg = k;
-        }
-    }
-    if best <= 1e-12 || arg + 1 >= amp.len() {
-        return f64::NAN;
-    }
-    let (a, b, c) = (amp[arg - 1], amp[arg], amp[arg + 1]);
-    let den = a - 2.0 * b + c;
-    let shift = if den.abs() > 0.0 { 0.5 * (a - c) / den } else { 0.0 };
-    (arg as f64 + shift) / (pad as f64 * dt)
-}
-
 /// The `vy` probe signal of physical frames `[T, >=2, ny, nx]` at [`PROBE`].
 pub fn probe_signal(frames: &Tensor, config: &CylinderConfig) -> Result<Vec<f64>> {
     let (_, c, ny, nx) = frames.dims4()?;
@@ -88,10 +49,11 @@ pub fn probe_signal(frames: &Tensor, config: &CylinderConfig) -> Result<Vec<f64>
         .to_vec1::<f64>()?)
 }
 
-/// Strouhal number `f D / U` of physical frames from the probe's dominant frequency.
+/// Strouhal number `f D / U` of physical frames from the probe's dominant frequency
+/// ([`strouhal_spectral_peak`]: rollouts are noisy, so the spectral peak, not zero crossings).
 pub fn strouhal(frames: &Tensor, config: &CylinderConfig) -> Result<f64> {
     let s = probe_signal(frames, config)?;
-    Ok(dominant_frequency(&s, config.frame_dt()) * DIAMETER / INFLOW)
+    Ok(strouhal_spectral_peak(&s, config.frame_dt(), DIAMETER, INFLOW))
 }
 
 /// Mean over cells and channels of the standard deviation across samples `[S, ...]`.
@@ -109,16 +71,6 @@ pub fn sample_spread(samples: &Tensor) -> Result<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn dominant_frequency_of_a_sine() {
-        // 0.173 Hz sampled at 10 Hz for 100 s: the peak lands within 0.2% (resolution 0.01 Hz).
-        let s: Vec<f64> =
-            (0..1000).map(|k| (2.0 * std::f64::consts::PI * 0.173 * k as f64 * 0.1).sin() + 0.3).collect();
-        let f = dominant_frequency(&s, 0.1);
-        assert!((f - 0.173).abs() / 0.173 < 2e-3, "f = {f}");
-        assert!(dominant_frequency(&[1.0; 100], 0.1).is_nan());
-    }
 
     #[test]
     fn stability_of_a_linear_ramp() {

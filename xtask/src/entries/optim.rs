@@ -5,8 +5,8 @@
 //!   final test loss and `seconds` the median step time).
 //! * bench `dipole`: the same on the HIG paper's quantum dipole (infidelity loss, J 448x9484).
 //! * bench `cartpole`: final test loss of stabilized-BPTT modes F, P, C for 1-4 poles at the
-//!   paper's length (fast `f64` adjoint path; 20 epochs in quick mode) and a PNG of loss
-//!   against the number of poles.
+//!   paper's length (hand-written `f64` adjoint path, `cartpole::adjoint`; 20 epochs in quick
+//!   mode) and a PNG of loss against the number of poles.
 //! * bench `guidance`: final test loss of stabilized-BPTT modes F, P, C on guidance by repulsion
 //!   for control-cost weights `rc = 1, 0.1, 0.01, 0.001` and a PNG of loss against `rc`.
 //! * bench `quantum_control`: final test loss of modes F, P, C for target eigenstates 3, 4, 5
@@ -296,9 +296,9 @@ fn tour_hig_vs_adam(ctx: &TaskContext) -> TaskResult<TourOutcome> {
 
 fn bench_cartpole(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     use pbdl_optim::bptt::GradientMode;
-    use pbdl_optim::cartpole::{fast, CartPoleConfig};
+    use pbdl_optim::cartpole::{adjoint, CartPoleConfig};
     use rayon::prelude::*;
-    // The paper's setup on the fast f64 path (hand-written adjoint): Adam lr 1e-3, b = 8,
+    // The paper's setup on the f64 path with the hand-written adjoint: Adam lr 1e-3, b = 8,
     // 256 train / 256 test episodes, seed 42, 1000 epochs of 32 steps, no clipping. Quick mode
     // keeps everything but the length (20 epochs).
     let epochs = if ctx.quick { 20 } else { 1000 };
@@ -315,7 +315,7 @@ fn bench_cartpole(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         })
         .collect();
     // Runs are independent and serial inside: one per rayon thread.
-    let runs = configs.par_iter().map(|(_, _, cfg)| fast::train(cfg)).collect::<Result<Vec<_>, _>>()?;
+    let runs = configs.par_iter().map(|(_, _, cfg)| adjoint::train(cfg)).collect::<Result<Vec<_>, _>>()?;
     let mut rows = Vec::new();
     let mut finals: Vec<Vec<f64>> = vec![Vec::new(); modes.len()];
     for ((poles, k, cfg), run) in configs.iter().zip(&runs) {

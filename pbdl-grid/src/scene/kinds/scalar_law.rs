@@ -2,7 +2,7 @@
 //! advection-diffusion by a constant velocity (`advection_diffusion`), via [`ScalarLaw`].
 
 use super::{c, check_finite_scalar, max_abs, FieldInput, PhysicsKind, Setup};
-use crate::burgers::ScalarLaw;
+use crate::scalar_law::ScalarLaw;
 use crate::scene::{SceneResult, State};
 use crate::time_stepping::ButcherTableau;
 use crate::Error;

@@ -1,10 +1,11 @@
-//! The fast cart-pole path (`cartpole::fast`) against the candle path: gradients of every mode,
-//! clipping, Adam and whole short training runs; its adjoint against central differences.
+//! The hand-written adjoint cart-pole path (`cartpole::adjoint`) against the candle path:
+//! gradients of every mode, clipping, Adam and whole short training runs; its adjoint against
+//! central differences.
 
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::train::ClipConfig;
 use pbdl_optim::bptt::{gradients, GradientMode};
-use pbdl_optim::cartpole::fast::{self, FastBptt, FastController};
+use pbdl_optim::cartpole::adjoint::{self, AdjointBptt, AdjointController};
 use pbdl_optim::cartpole::{train, CartPole, CartPoleConfig, Controller};
 
 const MODES: [GradientMode; 4] = [GradientMode::F, GradientMode::P, GradientMode::S, GradientMode::C];
@@ -25,7 +26,7 @@ fn random_states(p: &CartPole, n: usize, seed: u64) -> Tensor {
     pbdl_core::seed::rand_uniform((n, p.state_dim()), -2.0, 2.0, DType::F64, &Device::Cpu, seed).unwrap()
 }
 
-/// The candle path's gradient in the flat layout of `FastController::params`.
+/// The candle path's gradient in the flat layout of `AdjointController::params`.
 fn candle_grads(
     p: &CartPole,
     net: &Controller,
@@ -58,13 +59,13 @@ fn rel_diff(a: &[f64], b: &[f64]) -> f64 {
 fn compare(p: &CartPole, width: usize, batch: usize, seed: u64, clip: &ClipConfig) -> f64 {
     let net = random_controller(p.state_dim(), width, seed);
     let s0 = random_states(p, batch, seed + 100);
-    let fast_net = FastController::from_dense(&net).unwrap();
+    let adjoint_net = AdjointController::from_dense(&net).unwrap();
     let s0v = s0.flatten_all().unwrap().to_vec1::<f64>().unwrap();
-    let mut bptt = FastBptt::new(p, width, batch);
+    let mut bptt = AdjointBptt::new(p, width, batch);
     let mut worst = 0.0f64;
     for mode in MODES {
         let (g, loss, norm, agree) = candle_grads(p, &net, &s0, mode, clip);
-        let info = bptt.gradients(&fast_net, &s0v, mode, clip).unwrap();
+        let info = bptt.gradients(&adjoint_net, &s0v, mode, clip).unwrap();
         let r = rel_diff(bptt.grad(), &g);
         let ctx = format!("poles {}, {mode:?}, {clip:?}", p.poles);
         assert!(max_abs(&g) > 0.0, "{ctx}: zero gradient tests nothing");
@@ -101,15 +102,15 @@ fn gradients_match_candle_at_paper_size_with_clipping() {
     }
 }
 
-/// Mode F against central differences of the fast rollout's loss.
+/// Mode F against central differences of the adjoint path's rollout loss.
 #[test]
 fn mode_f_gradient_matches_finite_differences() {
     let mut p = CartPole::new(3);
     p.steps = 30;
     let width = 12;
-    let mut net = FastController::from_dense(&random_controller(p.state_dim(), width, 3)).unwrap();
+    let mut net = AdjointController::from_dense(&random_controller(p.state_dim(), width, 3)).unwrap();
     let s0 = random_states(&p, 4, 4).flatten_all().unwrap().to_vec1::<f64>().unwrap();
-    let mut bptt = FastBptt::new(&p, width, 4);
+    let mut bptt = AdjointBptt::new(&p, width, 4);
     bptt.gradients(&net, &s0, GradientMode::F, &ClipConfig::None).unwrap();
     let g = bptt.grad().to_vec();
     let o = net.offsets();
@@ -119,7 +120,7 @@ fn mode_f_gradient_matches_finite_differences() {
         let h = 1e-6;
         let mut at = |v: f64| {
             net.params_mut()[idx] = v;
-            fast::evaluate(&p, &net, &s0).unwrap()
+            adjoint::evaluate(&p, &net, &s0).unwrap()
         };
         let fd = (at(base + h) - at(base - h)) / (2.0 * h);
         at(base);
@@ -137,10 +138,10 @@ fn step_adjoint_matches_finite_differences() {
         let w = random_states(&p, 1, 40 + poles as u64).flatten_all().unwrap().to_vec1::<f64>().unwrap();
         let f = 0.7;
         let mut a_in = vec![0.0; d];
-        let af = fast::step_adjoint(&p, &s, f, &w, &mut a_in);
+        let af = adjoint::step_adjoint(&p, &s, f, &w, &mut a_in);
         let obj = |s: &[f64], f: f64| {
             let mut out = vec![0.0; d];
-            fast::step(&p, s, f, &mut out);
+            adjoint::step(&p, s, f, &mut out);
             out.iter().zip(&w).map(|(a, b)| a * b).sum::<f64>()
         };
         let h = 1e-6;
@@ -172,7 +173,7 @@ fn short_training_runs_match_candle() {
         cfg.test = 16;
         cfg.eval_every = 1;
         let slow = train(&cfg).unwrap();
-        let quick = fast::train(&cfg).unwrap();
+        let quick = adjoint::train(&cfg).unwrap();
         assert_eq!(slow.steps, quick.steps);
         let diff = slow.test_loss.iter().zip(&quick.test_loss).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
         println!("{mode:?} {clip:?}: losses {:?}, max difference {diff:.1e}", quick.test_loss);
@@ -189,13 +190,13 @@ fn short_training_runs_match_candle() {
 #[test]
 fn bad_input_is_a_typed_error() {
     let p = CartPole::new(2);
-    let net = FastController::with_zero_last_layer(p.state_dim(), 8, 0).unwrap();
-    let mut bptt = FastBptt::new(&p, 8, 2);
+    let net = AdjointController::with_zero_last_layer(p.state_dim(), 8, 0).unwrap();
+    let mut bptt = AdjointBptt::new(&p, 8, 2);
     let err = bptt.gradients(&net, &[0.0; 5], GradientMode::F, &ClipConfig::None).unwrap_err();
     assert!(err.to_string().contains("s0 length"), "{err}");
     let err = bptt.gradients(&net, &[0.0; 12], GradientMode::F, &ClipConfig::Norm { max_norm: -1.0 }).unwrap_err();
     assert!(err.to_string().contains("max_norm"), "{err}");
-    let wide = FastController::with_zero_last_layer(p.state_dim(), 9, 0).unwrap();
+    let wide = AdjointController::with_zero_last_layer(p.state_dim(), 9, 0).unwrap();
     let err = bptt.gradients(&wide, &[0.0; 12], GradientMode::F, &ClipConfig::None).unwrap_err();
     assert!(err.to_string().contains("width"), "{err}");
 }

@@ -1,21 +1,21 @@
-//! A fast `f64` path for the cart-pole experiment: hand-written forward rollout and
+//! The cart-pole experiment with a hand-written adjoint in `f64`: forward rollout and
 //! reverse-mode adjoint of the dense tanh controller plus the semi-implicit Euler cart-pole
 //! step, with the gradient modes of [`crate::bptt`], clipping as
 //! [`pbdl_core::train::ClipConfig`] and Adam as [`pbdl_core::train::AdamConfig`] (candle-nn's
 //! update, operation for operation).
 //!
-//! The candle path ([`super::train`]) spends its time in per-op overhead on tiny tensors
+//! The candle autograd path ([`super::train`]) spends its time in per-op overhead on tiny tensors
 //! (`b = 8`, 100 steps): about 100 ms per update (200 ms in mode C) on the 2-core development
 //! machine. Here the rollout is plain loops and faer GEMMs over buffers allocated once per run:
 //! 2-7 ms per update there (20-60x; the machine was shared, so the spread is load), so the
 //! paper's 32,000 Adam steps take minutes. Same data, same initial weights, same gradients
 //! (tests compare every mode with the candle path to `1e-10` relative), same optimiser.
-//! `tests/cartpole_fast_tests.rs::speed_against_candle` (ignored) prints the comparison;
+//! The bench `cartpole` (`benches/cartpole.rs`) times one gradient on both paths;
 //! `examples/cartpole_modes.rs` runs the paper-length sweep.
 //!
 //! Because the controller outputs one scalar per sample, every mode's gradient is
 //! `sum_(n, b) a_u[n, b] grad_theta u(s_n^b)`: the modes differ only in the force adjoints
-//! `a_u` (see [`FastBptt`]), so mode C costs one forward rollout, the shared backward vectors
+//! `a_u` (see [`AdjointBptt`]), so mode C costs one forward rollout, the shared backward vectors
 //! and two cheap adjoint recursions, not two full backward passes.
 //!
 //! Adjoint of one step (per pole `i`, `p_i = sin th_i th_d_i^2`, `den_i = l (4/3 - m cos^2 th_i / M)`,
@@ -27,15 +27,15 @@
 //!
 //! ```
 //! use pbdl_optim::bptt::GradientMode;
-//! use pbdl_optim::cartpole::fast::{FastBptt, FastController};
+//! use pbdl_optim::cartpole::adjoint::{AdjointBptt, AdjointController};
 //! use pbdl_optim::cartpole::CartPole;
 //! use pbdl_core::train::ClipConfig;
 //!
 //! let mut phys = CartPole::new(2);
 //! phys.steps = 10;
-//! let net = FastController::with_zero_last_layer(phys.state_dim(), 16, 42)?;
+//! let net = AdjointController::with_zero_last_layer(phys.state_dim(), 16, 42)?;
 //! let s0 = phys.initial_states(4, 0)?.flatten_all()?.to_vec1::<f64>()?;
-//! let mut bptt = FastBptt::new(&phys, 16, 4);
+//! let mut bptt = AdjointBptt::new(&phys, 16, 4);
 //! let info = bptt.gradients(&net, &s0, GradientMode::C, &ClipConfig::Norm { max_norm: 1.0 })?;
 //! assert!(info.loss > 1.8 && info.agreement.is_some());
 //! assert_eq!(bptt.grad().len(), net.params().len());
@@ -112,12 +112,12 @@ fn split_mut(p: &mut [f64], l: Layout) -> PartsMut<'_> {
 /// The cart-pole controller `inputs -> width -> width -> 1` (tanh) as one flat `f64` vector in
 /// the layout of [`DenseController`](crate::controller::DenseController).
 #[derive(Clone, Debug, PartialEq)]
-pub struct FastController {
+pub struct AdjointController {
     layout: Layout,
     params: Vec<f64>,
 }
 
-impl FastController {
+impl AdjointController {
     /// The same weights as [`DenseController::with_zero_last_layer`](crate::controller::DenseController::with_zero_last_layer)
     /// with this seed (Glorot-uniform hidden weights, zero last layer and biases).
     pub fn with_zero_last_layer(inputs: usize, width: usize, seed: u64) -> Result<Self> {
@@ -369,9 +369,9 @@ pub fn step_adjoint(p: &CartPole, s: &[f64], f: f64, a_out: &[f64], a_in: &mut [
     af
 }
 
-/// What [`FastBptt::gradients`] measured; the gradient itself is [`FastBptt::grad`].
+/// What [`AdjointBptt::gradients`] measured; the gradient itself is [`AdjointBptt::grad`].
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FastGradInfo {
+pub struct AdjointGradInfo {
     /// The loss `1 - mean cos th` of the rollout.
     pub loss: f64,
     /// Global norm of the (combined) gradient before clipping.
@@ -389,7 +389,7 @@ pub struct FastGradInfo {
 /// steps at once (GEMMs); each mode then needs only its cheap adjoint recursion through the
 /// physics and one weighted sum over all steps (GEMMs again).
 #[derive(Debug)]
-pub struct FastBptt {
+pub struct AdjointBptt {
     phys: CartPole,
     layout: Layout,
     batch: usize,
@@ -416,7 +416,7 @@ pub struct FastBptt {
     grad_f: Vec<f64>,
 }
 
-impl FastBptt {
+impl AdjointBptt {
     /// Buffers for `phys`, a controller of hidden width `width`, and batches of `batch` samples.
     pub fn new(phys: &CartPole, width: usize, batch: usize) -> Self {
         let layout = Layout { d: phys.state_dim(), h: width };
@@ -444,15 +444,15 @@ impl FastBptt {
     }
 
     /// The gradient of the last [`Self::gradients`] call (combined and clipped), in the layout
-    /// of [`FastController::params`].
+    /// of [`AdjointController::params`].
     pub fn grad(&self) -> &[f64] {
         &self.grad
     }
 
-    fn check(&self, net: &FastController, s0: &[f64]) -> Result<()> {
+    fn check(&self, net: &AdjointController, s0: &[f64]) -> Result<()> {
         if net.layout != self.layout {
             return Err(Error::shape(
-                "controller (inputs, width) for these FastBptt buffers",
+                "controller (inputs, width) for these AdjointBptt buffers",
                 format!("({}, {})", self.layout.d, self.layout.h),
                 format!("({}, {})", net.layout.d, net.layout.h),
             ));
@@ -461,7 +461,7 @@ impl FastBptt {
     }
 
     /// Forward rollout from `s0 [batch, d]`, keeping what the adjoint needs; returns the loss.
-    fn forward(&mut self, net: &FastController, s0: &[f64]) -> f64 {
+    fn forward(&mut self, net: &AdjointController, s0: &[f64]) -> f64 {
         let (l, b, nsteps) = (self.layout, self.batch, self.phys.steps);
         let (d, h) = (l.d, l.h);
         let p = split(&net.params, l);
@@ -479,7 +479,7 @@ impl FastBptt {
     }
 
     /// The backward vectors that every mode shares: `c`, `e` and `du/ds` for all steps.
-    fn shared_backward(&mut self, net: &FastController) {
+    fn shared_backward(&mut self, net: &AdjointController) {
         let l = self.layout;
         let (d, h, rows) = (l.d, l.h, self.phys.steps * self.batch);
         let p = split(&net.params, l);
@@ -568,11 +568,11 @@ impl FastBptt {
     /// clipped by `clip`; read them with [`Self::grad`].
     pub fn gradients(
         &mut self,
-        net: &FastController,
+        net: &AdjointController,
         s0: &[f64],
         mode: GradientMode,
         clip: &ClipConfig,
-    ) -> Result<FastGradInfo> {
+    ) -> Result<AdjointGradInfo> {
         self.check(net, s0)?;
         check_clip(clip)?;
         // Stops change no values: one forward rollout serves every mode.
@@ -604,7 +604,7 @@ impl FastBptt {
             return Err(Error::Diverged { step: 0, loss, last_good: 0 });
         }
         let norm_before_clip = clip_in_place(&mut self.grad, clip);
-        Ok(FastGradInfo { loss, norm_before_clip, agreement })
+        Ok(AdjointGradInfo { loss, norm_before_clip, agreement })
     }
 }
 
@@ -639,7 +639,7 @@ fn check_clip(clip: &ClipConfig) -> Result<()> {
 }
 
 /// Test loss `1 - mean cos th` of `net` on the episodes `states [n, d]` (forward only).
-pub fn evaluate(phys: &CartPole, net: &FastController, states: &[f64]) -> Result<f64> {
+pub fn evaluate(phys: &CartPole, net: &AdjointController, states: &[f64]) -> Result<f64> {
     let (l, d) = (net.layout, phys.state_dim());
     check_len("controller inputs (state_dim)", d, l.d)?;
     if states.len() % d != 0 {
@@ -665,7 +665,7 @@ pub fn evaluate(phys: &CartPole, net: &FastController, states: &[f64]) -> Result
     Ok(loss_of(phys, &s))
 }
 
-/// [`super::train`] on the fast path: the same data, initial weights, batches, gradients, clipping
+/// [`super::train`] on the hand-written adjoint path: the same data, initial weights, batches, gradients, clipping
 /// and Adam. `on_eval(step, test_loss)` is called at every evaluation (for progress output).
 pub fn train_with(cfg: &CartPoleConfig, on_eval: &mut dyn FnMut(usize, f64)) -> Result<CartPoleRun> {
     let phys = cfg.physics;
@@ -677,18 +677,18 @@ pub fn train_with(cfg: &CartPoleConfig, on_eval: &mut dyn FnMut(usize, f64)) -> 
         });
     }
     check_clip(&cfg.clip)?;
-    let mut net = FastController::with_zero_last_layer(phys.state_dim(), cfg.width, cfg.seed)?;
+    let mut net = AdjointController::with_zero_last_layer(phys.state_dim(), cfg.width, cfg.seed)?;
     let train = phys.initial_states(cfg.train, cfg.seed)?.flatten_all()?.to_vec1::<f64>()?;
     let test = phys.initial_states(cfg.test, cfg.seed + 1)?.flatten_all()?.to_vec1::<f64>()?;
     let mut opt = FlatAdam::new(AdamConfig { lr: cfg.lr, ..Default::default() }, net.params.len());
-    let mut bptt = FastBptt::new(&phys, cfg.width, cfg.batch);
+    let mut bptt = AdjointBptt::new(&phys, cfg.width, cfg.batch);
     let d = phys.state_dim();
-    let step = |net: &mut FastController, first: usize| -> Result<Option<f64>> {
+    let step = |net: &mut AdjointController, first: usize| -> Result<Option<f64>> {
         let info = bptt.gradients(net, &train[first * d..(first + cfg.batch) * d], cfg.mode, &cfg.clip)?;
         opt.step(&mut net.params, &bptt.grad)?;
         Ok(info.agreement)
     };
-    let test_loss = |net: &FastController, step: usize| -> Result<f64> {
+    let test_loss = |net: &AdjointController, step: usize| -> Result<f64> {
         let loss = evaluate(&phys, net, &test)?;
         on_eval(step, loss);
         Ok(loss)
