@@ -7,9 +7,9 @@ use super::heat_net::HeatScoreNet;
 use super::physics::PhysicsDrift;
 use super::sampler::Sampler;
 use crate::{Error, Result};
-use candle_core::{DType, Device, Tensor};
-use candle_nn::Optimizer;
-use pbdl_core::train::{AdamConfig, OptimizerConfig};
+use candle_core::{Device, Tensor};
+use pbdl_core::io::CheckpointMeta;
+use pbdl_core::train::{AdamConfig, LoopConfig, OptimizerConfig, TrainLoop};
 use rand::Rng;
 use std::time::Instant;
 
@@ -63,6 +63,13 @@ pub fn heat_one_step_loss(
 }
 
 /// Trains `net` on noisy heat simulations of `cfg.n_train` random fields.
+///
+/// The updates run as one in-memory [`TrainLoop`] over `net.vars()` ([`TrainLoop::run`]:
+/// candle's Adam with betas (0.9, 0.99) at `cfg.lr`, no clipping, no progress bar). A
+/// non-finite loss or gradient stops the run with the loop's
+/// [`pbdl_core::Error::Diverged`] (in [`Error::Core`]) before that update is applied; before
+/// the move onto the loop a non-finite loss gave [`Error::NonFinite`] and a non-finite
+/// gradient of a finite loss was applied.
 pub fn train_heat(problem: &HeatProblem, net: &HeatScoreNet, cfg: &HeatTrainConfig) -> Result<HeatTrainReport> {
     let start = Instant::now();
     problem.validate()?;
@@ -78,32 +85,36 @@ pub fn train_heat(problem: &HeatProblem, net: &HeatScoreNet, cfg: &HeatTrainConf
     let states = problem.simulate(&x0, cfg.seed ^ 0x5EED)?;
     // [(steps + 1) * n_train, 1, n, n]: state k of field i is row k * n_train + i.
     let all = Tensor::cat(&states, 0)?;
-    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, beta1: 0.9, beta2: 0.99, ..Default::default() })
-        .build(net.vars())?;
+    let adam = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, beta1: 0.9, beta2: 0.99, ..Default::default() });
     let mut rng = super::sde::chunk_rng(cfg.seed ^ 0xB47C, 3);
     let steps = problem.steps();
+    let run = LoopConfig { steps: cfg.updates as u64, progress: false, ..Default::default() };
+    let done = TrainLoop::in_memory(net.vars(), run)?.run::<Error>(
+        &adam,
+        |_| cfg.lr,
+        CheckpointMeta::at,
+        |_| {
+            let mut cur = Vec::with_capacity(cfg.batch);
+            let mut prev = Vec::with_capacity(cfg.batch);
+            let mut t = Vec::with_capacity(cfg.batch);
+            for _ in 0..cfg.batch {
+                let i = rng.random_range(0..cfg.n_train);
+                let k = rng.random_range(1..=steps);
+                cur.push((k * cfg.n_train + i) as u32);
+                prev.push(((k - 1) * cfg.n_train + i) as u32);
+                t.push(k as f64 * problem.dt);
+            }
+            let ci = Tensor::new(cur.as_slice(), &Device::Cpu)?;
+            let pi = Tensor::new(prev.as_slice(), &Device::Cpu)?;
+            heat_one_step_loss(problem, net, &all.index_select(&ci, 0)?, &t, &all.index_select(&pi, 0)?)
+        },
+    )?;
+    // The mean of every `log_every` losses, summed in update order as before the port.
     let mut report = HeatTrainReport::default();
     let mut acc = 0.0;
-    for u in 0..cfg.updates {
-        let mut cur = Vec::with_capacity(cfg.batch);
-        let mut prev = Vec::with_capacity(cfg.batch);
-        let mut t = Vec::with_capacity(cfg.batch);
-        for _ in 0..cfg.batch {
-            let i = rng.random_range(0..cfg.n_train);
-            let k = rng.random_range(1..=steps);
-            cur.push((k * cfg.n_train + i) as u32);
-            prev.push(((k - 1) * cfg.n_train + i) as u32);
-            t.push(k as f64 * problem.dt);
-        }
-        let ci = Tensor::new(cur.as_slice(), &Device::Cpu)?;
-        let pi = Tensor::new(prev.as_slice(), &Device::Cpu)?;
-        let loss = heat_one_step_loss(problem, net, &all.index_select(&ci, 0)?, &t, &all.index_select(&pi, 0)?)?;
-        let lv = loss.to_dtype(DType::F64)?.to_scalar::<f64>()?;
-        if !lv.is_finite() {
-            return Err(Error::NonFinite { what: "heat training loss".into(), step: u as u64 });
-        }
-        opt.backward_step(&loss)?;
-        acc += lv;
+    for &(u, loss) in &done.losses {
+        let u = u as usize;
+        acc += loss;
         if (u + 1) % cfg.log_every == 0 {
             report.losses.push((u + 1, acc / cfg.log_every as f64));
             acc = 0.0;

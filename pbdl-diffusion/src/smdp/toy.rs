@@ -7,6 +7,8 @@ use super::mlp::{paper_adam, ScoreMlp};
 use super::sampler::CoarseSteps;
 use super::sde::{chunk_rng, two_point_starts, Paths, ToySde};
 use crate::{Error, Result};
+use pbdl_core::io::CheckpointMeta;
+use pbdl_core::train::{LoopConfig, TrainLoop, Update};
 use rand::Rng;
 use std::time::Instant;
 
@@ -231,6 +233,13 @@ pub fn training_paths(sde: &ToySde, cfg: &ToyTrainConfig) -> Result<Paths> {
 }
 
 /// Trains `net` on `sde`'s paths following `cfg`.
+///
+/// Each stage is one in-memory [`TrainLoop`] run ([`TrainLoop::run_custom`], no progress bar)
+/// whose update draws the batch, computes the loss and its hand-written gradient and takes the
+/// stage's own Adam step ([`paper_adam`], fresh per stage); the batches come from one random
+/// stream over all stages. A non-finite loss stops the run with [`Error::NonFinite`] (step
+/// counted over all stages) before its update is applied (a bidirectional update has then
+/// applied its backward half).
 pub fn train_toy(sde: &ToySde, net: &mut ScoreMlp, cfg: &ToyTrainConfig) -> Result<ToyTrainReport> {
     let start = Instant::now();
     sde.validate()?;
@@ -278,85 +287,97 @@ pub fn train_toy(sde: &ToySde, net: &mut ScoreMlp, cfg: &ToyTrainConfig) -> Resu
         };
         let (mut h, mut w) = (vec![sde.dt; b], vec![1.0; b]);
         let mut targets = vec![vec![0.0; b]; window];
-        let mut acc = 0.0;
-        for u in 0..stage.updates {
-            for i in 0..b {
-                let p = rng.random_range(0..paths.n_paths);
-                let k = match (stage.loss, cfg.time_sampling) {
-                    // The official grid: every stride-th point counted from t = T.
-                    (ToyLoss::Strided { stride, .. }, TimeSampling::Uniform) => {
-                        steps - stride * rng.random_range(grid_j(stride))
+        let run = LoopConfig { steps: stage.updates as u64, progress: false, ..Default::default() };
+        // The stage's own Adam over the hand-written gradient; the loop only frames the updates.
+        let done = TrainLoop::in_memory(Vec::new(), run)?.run_custom::<Error>(
+            |_| stage.lr,
+            CheckpointMeta::at,
+            |u, _lr| {
+                let u = u as usize;
+                for i in 0..b {
+                    let p = rng.random_range(0..paths.n_paths);
+                    let k = match (stage.loss, cfg.time_sampling) {
+                        // The official grid: every stride-th point counted from t = T.
+                        (ToyLoss::Strided { stride, .. }, TimeSampling::Uniform) => {
+                            steps - stride * rng.random_range(grid_j(stride))
+                        }
+                        (_, TimeSampling::Uniform) => rng.random_range(first..=last),
+                        (_, TimeSampling::LogUniform) => {
+                            let u: f64 = rng.random_range(0.0..1.0);
+                            let (lo, hi) = ((first as f64).ln(), ((last + 1) as f64).ln());
+                            ((lo + u * (hi - lo)).exp().floor() as usize).clamp(first, last)
+                        }
+                    };
+                    let path = paths.path(p);
+                    x[i] = path[k];
+                    t[i] = k as f64 * sde.dt;
+                    if let Some((g, fine_weight)) = grid {
+                        let stride = g.stride_at(k, sde.dt);
+                        h[i] = stride as f64 * sde.dt;
+                        w[i] = if stride < g.stride { fine_weight } else { 1.0 };
+                        prev[i] = path[k - stride];
+                        continue;
                     }
-                    (_, TimeSampling::Uniform) => rng.random_range(first..=last),
-                    (_, TimeSampling::LogUniform) => {
-                        let u: f64 = rng.random_range(0.0..1.0);
-                        let (lo, hi) = ((first as f64).ln(), ((last + 1) as f64).ln());
-                        ((lo + u * (hi - lo)).exp().floor() as usize).clamp(first, last)
+                    for (m, tg) in targets.iter_mut().enumerate() {
+                        tg[i] = path[k - 1 - m];
+                    }
+                    prev[i] = path[k - window];
+                }
+                grad.fill(0.0);
+                let loss = match stage.loss {
+                    ToyLoss::OneStep => one_step_loss(net, &sde.drift, sde.dt, &x, &t, &prev, Some(&mut grad), &mut ws),
+                    ToyLoss::MultiStep(_) => {
+                        multi_step_loss(net, &sde.drift, sde.dt, &x, &t, &targets, false, Some(&mut grad), &mut ws)
+                    }
+                    ToyLoss::Graded { .. } => {
+                        graded_one_step_loss(net, &sde.drift, &h, &w, &x, &t, &prev, Some(&mut grad), &mut ws)
+                    }
+                    ToyLoss::Strided { stride, bidirectional: false } => {
+                        let h = stride as f64 * sde.dt;
+                        one_step_loss(net, &sde.drift, h, &x, &t, &prev, Some(&mut grad), &mut ws)
+                    }
+                    ToyLoss::Strided { stride, bidirectional: true } => {
+                        let h = stride as f64 * sde.dt;
+                        let back = multi_step_loss(
+                            net,
+                            &sde.drift,
+                            h,
+                            &x,
+                            &t,
+                            std::slice::from_ref(&prev),
+                            false,
+                            Some(&mut grad),
+                            &mut ws,
+                        );
+                        adam.step(net.params_mut(), &grad)?;
+                        grad.fill(0.0);
+                        // The reversed window: from x_{k-stride} forward to x_k with step -h.
+                        let t_prev: Vec<f64> = t.iter().map(|v| (v - h).max(0.0)).collect();
+                        let fwd = multi_step_loss(
+                            net,
+                            &sde.drift,
+                            -h,
+                            &prev,
+                            &t_prev,
+                            std::slice::from_ref(&x),
+                            false,
+                            Some(&mut grad),
+                            &mut ws,
+                        );
+                        back + fwd
                     }
                 };
-                let path = paths.path(p);
-                x[i] = path[k];
-                t[i] = k as f64 * sde.dt;
-                if let Some((g, fine_weight)) = grid {
-                    let stride = g.stride_at(k, sde.dt);
-                    h[i] = stride as f64 * sde.dt;
-                    w[i] = if stride < g.stride { fine_weight } else { 1.0 };
-                    prev[i] = path[k - stride];
-                    continue;
+                if !loss.is_finite() {
+                    return Err(Error::NonFinite { what: "toy training loss".into(), step: (total + u) as u64 });
                 }
-                for (m, tg) in targets.iter_mut().enumerate() {
-                    tg[i] = path[k - 1 - m];
-                }
-                prev[i] = path[k - window];
-            }
-            grad.fill(0.0);
-            let loss = match stage.loss {
-                ToyLoss::OneStep => one_step_loss(net, &sde.drift, sde.dt, &x, &t, &prev, Some(&mut grad), &mut ws),
-                ToyLoss::MultiStep(_) => {
-                    multi_step_loss(net, &sde.drift, sde.dt, &x, &t, &targets, false, Some(&mut grad), &mut ws)
-                }
-                ToyLoss::Graded { .. } => {
-                    graded_one_step_loss(net, &sde.drift, &h, &w, &x, &t, &prev, Some(&mut grad), &mut ws)
-                }
-                ToyLoss::Strided { stride, bidirectional: false } => {
-                    let h = stride as f64 * sde.dt;
-                    one_step_loss(net, &sde.drift, h, &x, &t, &prev, Some(&mut grad), &mut ws)
-                }
-                ToyLoss::Strided { stride, bidirectional: true } => {
-                    let h = stride as f64 * sde.dt;
-                    let back = multi_step_loss(
-                        net,
-                        &sde.drift,
-                        h,
-                        &x,
-                        &t,
-                        std::slice::from_ref(&prev),
-                        false,
-                        Some(&mut grad),
-                        &mut ws,
-                    );
-                    adam.step(net.params_mut(), &grad)?;
-                    grad.fill(0.0);
-                    // The reversed window: from x_{k-stride} forward to x_k with step -h.
-                    let t_prev: Vec<f64> = t.iter().map(|v| (v - h).max(0.0)).collect();
-                    let fwd = multi_step_loss(
-                        net,
-                        &sde.drift,
-                        -h,
-                        &prev,
-                        &t_prev,
-                        std::slice::from_ref(&x),
-                        false,
-                        Some(&mut grad),
-                        &mut ws,
-                    );
-                    back + fwd
-                }
-            };
-            if !loss.is_finite() {
-                return Err(Error::NonFinite { what: "toy training loss".into(), step: (total + u) as u64 });
-            }
-            adam.step(net.params_mut(), &grad)?;
+                adam.step(net.params_mut(), &grad)?;
+                Ok(Update::loss(loss))
+            },
+        )?;
+        // The mean of every `log_every` losses, summed in update order as before the port.
+        let mut acc = 0.0;
+        for &(u, loss) in &done.losses {
+            let u = u as usize;
             acc += loss;
             if (u + 1) % cfg.log_every == 0 {
                 report.losses.push((total + u + 1, acc / cfg.log_every as f64, si));
