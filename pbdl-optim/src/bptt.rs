@@ -31,9 +31,10 @@ use crate::error::Result;
 use candle_core::backprop::GradStore;
 use candle_core::{Tensor, Var};
 use candle_nn::Optimizer;
-use pbdl_core::train::{AdamConfig, ClipConfig, OptimizerConfig};
+use pbdl_core::io::CheckpointMeta;
+use pbdl_core::train::{AdamConfig, ClipConfig, LoopConfig, OptimizerConfig, TrainLoop, Update};
 use serde::{Deserialize, Serialize};
-use std::time::Instant;
+use std::cell::RefCell;
 
 /// Which gradient paths of a rollout are kept; see the module docs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -318,11 +319,13 @@ pub fn train(
 }
 
 /// The loop of a stabilized-BPTT run, written once for the candle path ([`train`]) and the
-/// cart-pole fast path: checks the batch size against the `n_train` training episodes, then
-/// calls `step(model, first)` (gradient and optimiser update on the batch of episodes
-/// `first..first + batch`, cycled in order; returns mode C's sign agreement) `iterations`
-/// times, timing it, and records `evaluate(model, steps_done)` at step 0, every `eval_every`
-/// steps and after the last.
+/// cart-pole hand-written adjoint path ([`crate::cartpole::adjoint`]) on
+/// [`pbdl_core::train::TrainLoop`] (in memory, no progress bar): checks the batch size against
+/// the `n_train` training episodes, then calls `step(model, first)` (gradient and optimiser
+/// update on the batch of episodes `first..first + batch`, cycled in order; returns mode C's
+/// sign agreement) `iterations` times, timed by the loop, and records
+/// `evaluate(model, steps_done)` at step 0, every `eval_every` steps and after the last (not
+/// timed).
 pub(crate) fn run_schedule<S>(
     schedule: &TrainSchedule,
     n_train: usize,
@@ -331,24 +334,37 @@ pub(crate) fn run_schedule<S>(
     mut evaluate: impl FnMut(&S, usize) -> Result<f64>,
 ) -> Result<BpttRun> {
     check_batch(schedule.batch, n_train)?;
-    let mut run = BpttRun { steps: vec![0], test_loss: vec![evaluate(model, 0)?], ..Default::default() };
     let n_batches = n_train / schedule.batch;
+    // The update and the evaluation both reach the model, one at a time.
+    let model = RefCell::new(model);
+    let (mut steps, mut test_loss) = (Vec::new(), Vec::new());
     let (mut agree_sum, mut agree_n) = (0.0, 0usize);
-    for it in 0..schedule.iterations {
-        let t = Instant::now();
-        let agreement = step(model, (it % n_batches) * schedule.batch)?;
-        run.seconds += t.elapsed().as_secs_f64();
-        if let Some(a) = agreement {
-            agree_sum += a;
-            agree_n += 1;
-        }
-        if (it + 1) % schedule.eval_every.max(1) == 0 || it + 1 == schedule.iterations {
-            run.steps.push(it + 1);
-            run.test_loss.push(evaluate(model, it + 1)?);
-        }
-    }
-    run.agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
-    Ok(run)
+    let cfg = LoopConfig { steps: schedule.iterations as u64, progress: false, ..Default::default() };
+    let report = TrainLoop::in_memory(Vec::new(), cfg)?
+        .evaluate_every(schedule.eval_every.max(1) as u64, |done| -> Result<f64> {
+            let value = evaluate(&**model.borrow(), done as usize)?;
+            steps.push(done as usize);
+            test_loss.push(value);
+            // A non-finite test loss is a measurement here (mode F may blow up), recorded
+            // while training goes on; the loop's guard would stop at it, so it sees a finite
+            // stand-in. A non-finite training loss stops the run in `step` (`Diverged`).
+            Ok(if value.is_finite() { value } else { f64::MAX })
+        })
+        .run_custom::<crate::Error>(
+            |_| schedule.lr,
+            CheckpointMeta::at,
+            |it, _| {
+                let agreement = step(&mut **model.borrow_mut(), (it as usize % n_batches) * schedule.batch)?;
+                if let Some(a) = agreement {
+                    agree_sum += a;
+                    agree_n += 1;
+                }
+                // `step` reports no training loss (its gradients already refuse a non-finite one).
+                Ok(Update::loss(0.0))
+            },
+        )?;
+    let agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
+    Ok(BpttRun { steps, test_loss, seconds: report.seconds, agreement })
 }
 
 /// A batch size between 1 and the number `n_train` of training episodes.

@@ -41,7 +41,10 @@ use crate::ddpm::{Conditioning, Diffusion, Loss, NoisePredictor};
 use crate::schedule::{NoiseSchedule, COSINE_S};
 use crate::{Error, Result};
 use candle_core::{DType, Tensor, Var};
-use pbdl_core::train::{train_step, AdamWConfig, ClipConfig, LrScheduler, NanGuard, OptimizerConfig, ScheduleConfig};
+use pbdl_core::io::CheckpointMeta;
+use pbdl_core::train::{
+    AdamWConfig, ClipConfig, LoopConfig, LrScheduler, OptimizerConfig, ScheduleConfig, StepInfo, TrainLoop,
+};
 use rand::seq::SliceRandom;
 use rand::Rng;
 
@@ -168,8 +171,10 @@ pub struct TrainConfig {
     pub seed: u64,
 }
 
-/// Trains `model` (with trainable `vars`) on `data` with the epsilon-MSE objective; calls
-/// `on_step(step, loss)` after each step and returns the loss of every step.
+/// Trains `model` (with trainable `vars`, in this order) on `data` with the epsilon-MSE
+/// objective on [`pbdl_core::train::TrainLoop`] (in memory: AdamW, cosine learning rate down to
+/// `lr / 100`, clipping at global norm 1, a non-finite loss or gradient stops with
+/// `Diverged`); calls `on_step(step, loss)` after each step and returns the loss of every step.
 pub fn train<M: NoisePredictor + ?Sized>(
     model: &M,
     vars: Vec<Var>,
@@ -186,27 +191,36 @@ pub fn train<M: NoisePredictor + ?Sized>(
         });
     }
     let opt_cfg = OptimizerConfig::AdamW(AdamWConfig { lr: cfg.lr, ..Default::default() });
-    let mut opt = opt_cfg.build(vars.clone())?;
     let sched = LrScheduler::new(
         ScheduleConfig::Cosine { total_steps: cfg.steps as u64, warmup_steps: 0, min_lr: cfg.lr / 100.0 },
         cfg.lr,
     )?;
-    let mut guard = NanGuard::new();
+    let loop_cfg = LoopConfig {
+        steps: cfg.steps as u64,
+        clip: ClipConfig::Norm { max_norm: 1.0 },
+        progress: false,
+        ..Default::default()
+    };
     let mut rng = pbdl_core::seed::rng(cfg.seed);
     let n = data.len();
-    let mut losses = Vec::with_capacity(cfg.steps);
-    for step in 0..cfg.steps {
-        let idx: Vec<u32> = (0..cfg.batch.min(n)).map(|_| rng.random_range(0..n) as u32).collect();
-        let idx = Tensor::from_vec(idx, cfg.batch.min(n), data.target.device())?;
-        let x0 = data.target.index_select(&idx, 0)?;
-        let c = data.cond.index_select(&idx, 0)?;
-        let loss = diffusion.loss(model, &x0, Some(&c), Loss::Mse, rng.random())?;
-        sched.apply(&mut opt, step as u64);
-        let info = train_step(step as u64, &loss, &mut opt, &vars, &ClipConfig::Norm { max_norm: 1.0 }, &mut guard)?;
-        losses.push(info.loss);
-        on_step(step, info.loss);
-    }
-    Ok(losses)
+    let report = TrainLoop::in_memory(vars, loop_cfg)?
+        .after_step(|step, info: &StepInfo| -> Result<()> {
+            on_step(step as usize, info.loss);
+            Ok(())
+        })
+        .run::<Error>(
+            &opt_cfg,
+            |step| sched.lr(step),
+            CheckpointMeta::at,
+            |_| {
+                let idx: Vec<u32> = (0..cfg.batch.min(n)).map(|_| rng.random_range(0..n) as u32).collect();
+                let idx = Tensor::from_vec(idx, cfg.batch.min(n), data.target.device())?;
+                let x0 = data.target.index_select(&idx, 0)?;
+                let c = data.cond.index_select(&idx, 0)?;
+                diffusion.loss(model, &x0, Some(&c), Loss::Mse, rng.random())
+            },
+        )?;
+    Ok(report.losses.into_iter().map(|(_, loss)| loss).collect())
 }
 
 /// How many samples [`predict_stats`] draws.
