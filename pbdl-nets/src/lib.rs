@@ -16,7 +16,12 @@
 //! | [`discriminator`] | a conv discriminator: per-sample logits and the intermediate features, for GAN losses |
 //! | [`padding`] | [`Padding`] (zeros, periodic, periodic in x only as WeatherBench) and the [`PaddedConv2d`] layer |
 //! | [`layers`] | [`Linear`] (PyTorch layout and init) |
+//! | [`recurrent`] | [`recurrent::LstmCell`] and the stacked batch-first [`recurrent::Lstm`] (PyTorch layout), [`recurrent::ConvLstmCell`] (Shi et al., zero or periodic padding) |
 //! | [`resample`] | space-to-depth and nearest 2x upsampling |
+//! | [`shuffle`] | [`pixel_shuffle`](shuffle::pixel_shuffle) / [`pixel_unshuffle`](shuffle::pixel_unshuffle) in PyTorch's channel order (sub-pixel upsampling) |
+//! | [`pad`] | [`pad_per_axis`](pad::pad_per_axis): zeros / periodic / replicate / reflect per axis, as `numpy.pad` |
+//! | [`dropout`] | [`Dropout`](dropout::Dropout), inverted dropout with a seeded mask |
+//! | [`spectral_norm`] | [`SpectralNorm`](spectral_norm::SpectralNorm) (power iteration, PyTorch's `spectral_norm`) and [`SpectralNormConv2d`](spectral_norm::SpectralNormConv2d) for discriminators |
 //! | [`embedding`] | [`sinusoidal_embedding`] of the diffusion step |
 //! | [`init`] | [`seeded_init`], [`count_parameters`] |
 //! | [`error`] | [`Error`], [`Result`] |
@@ -24,15 +29,20 @@
 
 pub mod attention;
 pub mod discriminator;
+pub mod dropout;
 pub mod embedding;
 pub mod encoder_decoder;
 pub mod error;
 pub mod init;
 pub mod layers;
 pub mod mlp;
+pub mod pad;
 pub mod padding;
+pub mod recurrent;
 pub mod resample;
 pub mod resnet;
+pub mod shuffle;
+pub mod spectral_norm;
 pub mod unet;
 
 pub use embedding::sinusoidal_embedding;

@@ -4,7 +4,8 @@
 use crate::{Error, Result};
 use candle_core::Tensor;
 
-/// Space-to-depth: `[b, c, 2h, 2w] -> [b, 4c, h, w]`, channel `4 c + 2 dy + dx`.
+/// Space-to-depth: `[b, c, 2h, 2w] -> [b, 4c, h, w]`, channel `4 c + 2 dy + dx`. This is PyTorch's
+/// `pixel_unshuffle(x, 2)`, i.e. [`crate::shuffle::pixel_unshuffle`] with `r = 2` (tested there).
 ///
 /// ```
 /// use candle_core::{DType, Device, Tensor};
