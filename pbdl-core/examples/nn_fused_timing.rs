@@ -61,7 +61,7 @@ fn ab(reps: usize, a: &Case, b: &Case) -> ((f64, f64), (f64, f64)) {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count();
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let reps = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(30);
     let dev = Device::Cpu;
     println!("{} threads, median wall / mean CPU of {reps} alternating calls, f32", rayon::current_num_threads());

@@ -17,8 +17,9 @@
 //! | [`tolerance`] | named test tolerances with their reasons ([`tolerance::GRAD_CHECK_F64`], f32/f64 agreement) |
 //! | [`train`] | optimisers (Adam/AdamW/SGD+momentum) from serde configs, lr schedules, gradient clipping, CSV/JSON scalar logs, progress bar, divergence guard |
 //! | [`sample`] | differentiable bilinear/trilinear sampling at points and warping (clamped or periodic), resize (nearest, bilinear, bicubic) |
+//! | [`fft`] | differentiable real FFTs over the last 2 or 3 axes as numpy/PyTorch ([`fft::rfft2`], [`fft::irfft2`], [`fft::rfft3`], [`fft::irfft3`]; `(re, im)` as a trailing axis), [`fft::power_spectrum_2d`] |
 //! | [`stepper`] | the simulator seams: [`stepper::Stepper`] (state in, state out, operators listed, differentiable where it is) and [`stepper::Evolve`] (in place, adaptive step, `run_until`) |
-//! | [`threads`] | [`threads::pin_thread_count`]: fix candle's CPU thread count once per process (it otherwise re-counts cores on every matmul) |
+//! | [`threads`] | the one thread policy: [`threads::init`] sets rayon's pool, candle's and gemm's thread count once (`PBDL_THREADS`), [`threads::parallel`] says whether an op is big enough to split (`PBDL_SERIAL_BELOW`) |
 //! | `ndarray_interop` (feature `ndarray`) | candle tensors to and from `ndarray` arrays: buffers moved, views without copies |
 //! | [`matmul`] | [`matmul::matmul`]: the one bounds-checked strided matrix product (gemm, runtime CPU dispatch) behind every hand-written kernel |
 //! | [`io`] | atomic writes, checkpoints (safetensors + JSON sidecar, resume from the latest), `.npy`/`.npz` with typed errors |
@@ -31,6 +32,7 @@
 pub mod conv;
 pub mod data;
 pub mod error;
+pub mod fft;
 pub mod grad_check;
 pub mod io;
 pub mod matmul;

@@ -134,7 +134,7 @@ pub fn matmul<T: Real>(
 /// parallel chunks, and with which parallelism inside each matrix product (the threads left
 /// over when there are fewer units than threads, e.g. a single image).
 pub(crate) fn split(units: usize) -> (usize, Threads) {
-    let threads = rayon::current_num_threads().max(1);
+    let threads = crate::threads::count();
     let chunks = threads.min(units).max(1);
     let inner = threads / chunks;
     let par = if inner > 1 { Threads::Rayon(inner) } else { Threads::Serial };

@@ -6,7 +6,7 @@ use pbdl_diffusion::acdm::data::{default_cache_dir, test_config, train_config, C
 use pbdl_diffusion::acdm::metrics::{mean, strouhal, temporal_stability};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let args: Vec<String> = std::env::args().skip(1).collect();
     let tiny = args.iter().any(|a| a == "tiny");
     let config = if tiny {

@@ -13,7 +13,7 @@ use pbdl_diffusion::acdm::eval::{evaluate, EvalConfig, EvalReport};
 use pbdl_diffusion::acdm::model::{Method, Model, ModelConfig, Sampler};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let a: Vec<String> = std::env::args().skip(1).collect();
     let method = match a.first().map(String::as_str).unwrap_or("unet") {
         "acdm" => Method::Acdm,

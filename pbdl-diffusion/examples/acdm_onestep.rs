@@ -18,7 +18,7 @@ fn mean_abs(x: &Tensor) -> Result<f64, Box<dyn std::error::Error>> {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count();
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let a: Vec<String> = std::env::args().skip(1).collect();
     let method = if a.first().map(String::as_str) == Some("unet") { Method::Unet } else { Method::Acdm };
     let dim: usize = a.get(1).and_then(|s| s.parse().ok()).unwrap_or(48);

@@ -7,7 +7,7 @@ use pbdl_diffusion::acdm::model::{Method, Model, ModelConfig};
 use pbdl_diffusion::acdm::train::{loss, sample_windows};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let a: Vec<String> = std::env::args().skip(1).collect();
     let variant = a.first().cloned().unwrap_or_default();
     let method = if variant == "unet" { Method::Unet } else { Method::Acdm };

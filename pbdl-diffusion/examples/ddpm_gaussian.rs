@@ -15,7 +15,7 @@ fn moments(x: &candle_core::Tensor) -> pbdl_diffusion::Result<(f64, f64)> {
 }
 
 fn main() -> pbdl_diffusion::Result<()> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let (mu, sd) = (1.5, 0.5);
     let x_start = Diffusion::noise(&[64, 1, 32, 32], DType::F32, &Device::Cpu, 0)?;
     println!("data: mean {mu}, variance {}; {} samples", sd * sd, x_start.elem_count());

@@ -44,7 +44,7 @@ fn pair(name: &str, default: (usize, usize)) -> (usize, usize) {
 }
 
 fn main() -> pbdl_diffusion::Result<()> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let affine = arg("--drift").as_deref() == Some("affine");
     let sde = if affine { ToySde::paper_affine() } else { ToySde::paper_quadratic() };
     let seed: u64 = arg("--seed").and_then(|v| v.parse().ok()).unwrap_or(0);

@@ -43,7 +43,7 @@ fn report(name: &str, (wall, cpu): (f64, f64)) {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let args: Vec<usize> = std::env::args().skip(1).filter_map(|a| a.parse().ok()).collect();
     let dim = args.first().copied().unwrap_or(16);
     let batch = args.get(1).copied().unwrap_or(16);

@@ -58,7 +58,7 @@ fn pressure(c: &mut Criterion) {
 criterion_group!(benches, pressure);
 fn main() {
     // candle re-counts the cores on every CPU matmul unless the thread count is in the environment.
-    pbdl_core::threads::pin_thread_count();
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     benches();
     criterion::Criterion::default().configure_from_args().final_summary();
 }

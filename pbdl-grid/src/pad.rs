@@ -9,11 +9,12 @@ use crate::scratch::zeros;
 use pbdl_core::Real;
 use rayon::prelude::*;
 
-/// Fields with at least this many cells are processed row-parallel; below, rayon costs more than it
-/// gains. A step runs ~50 short parallel regions, and each one waits for a worker to wake up: on
-/// the shared 2-core machine (load ~4.5) a 128^2 Taylor-Green RK4 step took 0.46 ms serial and
-/// 0.78 ms with 2 threads (release, median of 300), so 128^2 stays serial.
-pub(crate) const PAR_CELLS: usize = 192 * 192;
+/// Whether a field of `cells` cells is processed row-parallel: the process's
+/// [`pbdl_core::threads`] policy (by default from 192^2 cells on; a step runs ~50 short parallel
+/// regions, each waiting for a worker to wake up, so smaller grids stay serial).
+pub(crate) fn parallel_cells(cells: usize) -> bool {
+    pbdl_core::threads::parallel(cells)
+}
 
 /// Runs `f(row_index, row)` over the rows of `out`, in parallel for large grids.
 pub(crate) fn for_rows<T: Send, F>(out: &mut [T], row_len: usize, parallel: bool, f: F)

@@ -16,7 +16,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let mut args = std::env::args().skip(1);
     let weights = args.next().map(PathBuf::from).unwrap_or_else(|| "../shared/weights/LSiM.safetensors".into());
     let data = args.next().map(PathBuf::from).unwrap_or_else(|| "../shared/data/lsim-example".into());

@@ -69,7 +69,7 @@ fn arg<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> T {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let args: Vec<String> = std::env::args().collect();
     let d = ExperimentConfig::default();
     let train_kinds = match args.iter().position(|a| a == "--train-kinds").and_then(|i| args.get(i + 1)) {

@@ -7,7 +7,7 @@ use pbdl_optim::mlp::{Activation, Mlp};
 use pbdl_optim::physics::{Dataset, Oscillators};
 
 fn main() -> pbdl_optim::Result<()> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let physics = Oscillators::linear_chain();
     let train = Dataset::return_to_start(4096, 4, 1);
     let test = Dataset::return_to_start(1024, 4, 2);

@@ -22,7 +22,7 @@ fn blit(canvas: &mut RgbImage, panel: &RgbImage, x0: u32, y0: u32) {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let seeds: Vec<u64> = std::env::args().skip(1).map(|a| a.parse()).collect::<Result<_, _>>()?;
     let seeds = if seeds.is_empty() { vec![0, 1, 2] } else { seeds };
     println!("| seed | racecar cos | plain cos | racecar CE | plain CE | racecar rec | plain rec | s/run |");

@@ -208,7 +208,7 @@ Examples:
   cargo xtask sim particles shock_tube --precision f32";
 
 fn main() -> anyhow::Result<()> {
-    pbdl_core::threads::pin_thread_count(); // candle re-counts cores per matmul otherwise
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm
     let cli = Cli::parse();
     match cli.command {
         Command::Tour { quick, out } => tour::run(quick, out.unwrap_or_else(|| report::target_dir().join("tour"))),

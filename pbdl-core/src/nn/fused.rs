@@ -36,10 +36,11 @@ const CHUNK: usize = 1 << 15;
 /// Group norm inputs with fewer elements run serially (a rayon region costs a wake-up).
 const PAR_NORM: usize = 1 << 15;
 
-/// Whether a loop over `len` elements should be split over rayon tasks: large enough, and
-/// more than one thread to run them (with one, the hand-off to the pool only costs).
+/// Whether a loop over `len` elements should be split over rayon tasks: at least two chunks of
+/// `threshold / 2`, more than one thread to run them (with one, the hand-off to the pool only
+/// costs), and large enough for the process's [`crate::threads`] policy.
 fn parallel(len: usize, threshold: usize) -> bool {
-    len >= threshold && rayon::current_num_threads() > 1
+    len >= threshold && crate::threads::parallel(len)
 }
 
 /// Whether `PBDL_NN_COMPOSED=1` asks for the composed versions (read once).

@@ -4,7 +4,7 @@
 use crate::boundary::MacGhosts;
 use crate::fd::dims4;
 use crate::field::MacField;
-use crate::pad::{for_rows, pad, pad_adjoint, PAR_CELLS};
+use crate::pad::{for_rows, pad, pad_adjoint, parallel_cells};
 use crate::scratch::uninit;
 use crate::{Grid, Result};
 use candle_core::{Shape, Tensor};
@@ -81,7 +81,7 @@ impl Kernel1 for MomentumRhs {
             pad(&xb[..n], nx, ny, &self.ghosts.u, true, &mut up);
             pad(&xb[n..], nx, ny, &self.ghosts.v, true, &mut vp);
             let (up, vp) = (&*up, &*vp);
-            for_rows(ob, nx, n >= PAR_CELLS, |row, o| {
+            for_rows(ob, nx, parallel_cells(n), |row, o| {
                 let o = &mut o[..nx];
                 if row < ny {
                     let r = (row + 1) * w;

@@ -14,7 +14,7 @@
 
 use crate::boundary::{Ghosts, MacGhosts};
 use crate::fd::dims4;
-use crate::pad::{accumulate_rows, for_rows, pad, pad_adjoint, PAR_CELLS};
+use crate::pad::{accumulate_rows, for_rows, pad, pad_adjoint, parallel_cells};
 use crate::scratch::zeros;
 use crate::Grid;
 use candle_core::{Shape, Tensor};
@@ -162,7 +162,7 @@ impl SemiLagrangian {
                 let off = (b * nc + ch) * n;
                 pad(&q[off..off + n], nx, ny, &gh, true, &mut qp);
                 let (up, vp, qp) = (&*up, &*vp, &*qp);
-                for_rows(&mut out[off..off + n], nx, n >= PAR_CELLS, |j, o| {
+                for_rows(&mut out[off..off + n], nx, parallel_cells(n), |j, o| {
                     for (i, o) in o.iter_mut().enumerate() {
                         let f = self.foot(up, vp, j, i, loc, cfl);
                         let c = f.k.map(|k| qp[k]);
@@ -285,7 +285,7 @@ impl SlGradQ {
                 }
                 gp.fill(T::zero());
                 let (up, vp, qp) = (&*up, &*vp, &*qp);
-                accumulate_rows(&mut gp, ny, n >= PAR_CELLS, |j, gp| {
+                accumulate_rows(&mut gp, ny, parallel_cells(n), |j, gp| {
                     for i in 0..nx {
                         let a = g[off + j * nx + i];
                         if sl.is_fixed(ch, j, i) || a == T::zero() {
@@ -372,7 +372,7 @@ impl Kernel3 for SlGradVel {
                 let off = (b * nc + ch) * n;
                 pad(&q[off..off + n], nx, ny, &gh, true, &mut qp);
                 let (up, vp, qp) = (&*up, &*vp, &*qp);
-                accumulate_rows(&mut guv, ny, n >= PAR_CELLS, |j, guv| {
+                accumulate_rows(&mut guv, ny, parallel_cells(n), |j, guv| {
                     let (gu, gv) = guv.split_at_mut(pn);
                     for i in 0..nx {
                         let a = g[off + j * nx + i];

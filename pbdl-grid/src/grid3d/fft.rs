@@ -5,7 +5,7 @@
 //! hold to round-off, so a projected velocity is discretely divergence-free to round-off.
 
 use super::Grid3d;
-use crate::pad::PAR_CELLS;
+use crate::pad::parallel_cells;
 use crate::scratch::{take, Pod};
 use rayon::prelude::*;
 use realfft::num_complex::Complex;
@@ -70,7 +70,7 @@ where
     /// `out = L^+ rhs` (both `nz x ny x nx`); the mean of `rhs` is dropped.
     pub(crate) fn solve(&self, rhs: &[F], out: &mut [F]) {
         let ([nx, ny, nz], nh) = (self.n, self.nh);
-        let par = nx * ny * nz >= PAR_CELLS;
+        let par = parallel_cells(nx * ny * nz);
         let plane = ny * nh;
         let zero = Complex::new(F::zero(), F::zero());
         let mut a = take::<Complex<F>>(nz * plane);

@@ -13,7 +13,7 @@
 use super::field::MacField3d;
 use super::periodic::{Periodic, E};
 use super::Grid3d;
-use crate::pad::{accumulate_rows, for_rows, PAR_CELLS};
+use crate::pad::{accumulate_rows, for_rows, parallel_cells};
 use crate::stability::check_nu;
 use crate::Result;
 use candle_core::{Shape, Tensor};
@@ -142,7 +142,7 @@ impl Kernel1 for MomentumRhs3d {
         let k = self.coef::<T>();
         for (xb, ob) in x.chunks(3 * n).zip(out.chunks_mut(3 * n)) {
             // One task per (component, row).
-            for_rows(ob, p.nx, n >= PAR_CELLS, |cr, o| {
+            for_rows(ob, p.nx, parallel_cells(n), |cr, o| {
                 let (c, r) = (cr / rows, cr % rows);
                 let rw = Rows::new(&p, xb, r);
                 match c {
@@ -197,7 +197,7 @@ impl Kernel2 for MomentumRhs3dAdjoint {
         let k = op.coef::<T>();
         let (h, two) = (T::c(0.5), T::c(2.0));
         for ((xb, gb), ob) in x.chunks(3 * n).zip(g.chunks(3 * n)).zip(out.chunks_mut(3 * n)) {
-            accumulate_rows(ob, 3 * rows, n >= PAR_CELLS, |cr, acc| {
+            accumulate_rows(ob, 3 * rows, parallel_cells(n), |cr, acc| {
                 let (c, r) = (cr / rows, cr % rows);
                 let rw = Rows::new(&p, xb, r);
                 // Flat index of `q_comp` at offset `o` from (r, i).

@@ -14,7 +14,7 @@
 use super::field::MacField3d;
 use super::momentum::{check_adjoint_shapes, check_shape};
 use super::Grid3d;
-use crate::pad::{accumulate_rows, for_rows, PAR_CELLS};
+use crate::pad::{accumulate_rows, for_rows, parallel_cells};
 use crate::stability::check_nu;
 use crate::{Error, Result};
 use candle_core::{Shape, Tensor};
@@ -195,7 +195,7 @@ impl Kernel1 for WallMomentumRhs {
         let (a, nu, ih, ih2) = self.consts::<T>();
         let (h, two) = (T::c(0.5), T::c(2.0));
         for (xb, ob) in x.chunks(3 * n).zip(out.chunks_mut(3 * n)) {
-            for_rows(ob, nx, n >= PAR_CELLS, |cr, o| {
+            for_rows(ob, nx, parallel_cells(n), |cr, o| {
                 let (c, r) = (cr / rows, cr % rows);
                 for (i, o) in o.iter_mut().enumerate() {
                     let p = geo.pos(r * nx + i);
@@ -248,7 +248,7 @@ impl Kernel2 for WallMomentumRhsAdjoint {
         let (a, nu, ih, ih2) = op.consts::<T>();
         let (h, two) = (T::c(0.5), T::c(2.0));
         for ((xb, gb), ob) in x.chunks(3 * n).zip(g.chunks(3 * n)).zip(out.chunks_mut(3 * n)) {
-            accumulate_rows(ob, 3 * rows, n >= PAR_CELLS, |cr, acc| {
+            accumulate_rows(ob, 3 * rows, parallel_cells(n), |cr, acc| {
                 let (c, r) = (cr / rows, cr % rows);
                 for i in 0..nx {
                     let p = geo.pos(r * nx + i);

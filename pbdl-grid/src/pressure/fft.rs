@@ -1,7 +1,7 @@
 //! Periodic Poisson solve by a real 2D FFT: rows with a real-to-complex transform, columns with a
 //! complex one, divide by the eigenvalues of the five-point Laplacian, transform back.
 
-use crate::pad::PAR_CELLS;
+use crate::pad::parallel_cells;
 use crate::scratch::{take, Pod};
 use crate::Grid;
 use rayon::prelude::*;
@@ -59,7 +59,7 @@ where
     /// `out = L^+ rhs` (both `ny x nx`).
     pub(crate) fn solve(&self, rhs: &[F], out: &mut [F]) {
         let (nx, ny, nh) = (self.nx, self.ny, self.nh);
-        let par = nx * ny >= PAR_CELLS;
+        let par = parallel_cells(nx * ny);
         let zero = Complex::new(F::zero(), F::zero());
         let mut spec = take::<Complex<F>>(ny * nh);
         let mut spec_t = take::<Complex<F>>(ny * nh);
