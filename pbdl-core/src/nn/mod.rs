@@ -11,6 +11,7 @@
 //! |---|---|---|
 //! | [`layer_norm`] | over the trailing `normalized_shape` dims, `(x - mean) / sqrt(var + eps)` | [`LayerNorm`] |
 //! | [`group_norm`] | `[batch, channel, ..]` over each group of channels and all spatial dims | [`GroupNorm`] |
+//! | [`batch_norm_train`], [`batch_norm_eval`] | `[batch, channel, ..]` per channel over batch and space (batch or running statistics), fused with an activation | [`BatchNorm2d`] |
 //! | [`rms_norm`] | over the trailing dims, `x / sqrt(mean(x^2) + eps)` | [`RmsNorm`] |
 //! | [`softmax`], [`log_softmax`] | over one chosen dim, shifted by the (detached) max for stability | |
 //! | [`activation`] | `relu`, `gelu`, `gelu_erf`, `silu`, `elu`, `leaky_relu`, `sigmoid`, `softplus`, `mish`, ... | [`Activation`] |
@@ -40,12 +41,18 @@
 //! ```
 
 pub mod activation;
+pub mod batch_norm;
+mod batch_norm_fused;
 mod fused;
 mod layers;
 mod norm;
 mod softmax;
 
 pub use activation::Activation;
+pub use batch_norm::{
+    batch_norm_eval, batch_norm_eval_composed, batch_norm_train, batch_norm_train_composed, BatchNorm2d,
+    BatchNormConfig, BatchStats,
+};
 pub use layers::{GroupNorm, GroupNormConfig, LayerNorm, LayerNormConfig, RmsNorm, RmsNormConfig};
 pub use norm::{group_norm, group_norm_composed, layer_norm, rms_norm};
 pub use softmax::{log_softmax, softmax};
