@@ -98,6 +98,7 @@ pub fn all() -> Vec<CrateTasks> {
         crate::entries::optim::tasks(),
         crate::entries::particles::tasks(),
         crate::entries::diffusion::tasks(),
+        crate::entries::nets::tasks(),
     ]
 }
 

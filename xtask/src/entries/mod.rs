@@ -5,5 +5,6 @@ pub mod core;
 pub mod diffusion;
 pub mod grid;
 pub mod metrics;
+pub mod nets;
 pub mod optim;
 pub mod particles;
