@@ -43,10 +43,43 @@ fn parallel(len: usize, threshold: usize) -> bool {
     len >= threshold && crate::threads::parallel(len)
 }
 
-/// Whether `PBDL_NN_COMPOSED=1` asks for the composed versions (read once).
+std::thread_local! {
+    /// Set inside [`with_composed`] on this thread.
+    static COMPOSED_HERE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Whether `PBDL_NN_COMPOSED=1` (read once) or [`with_composed`] asks for the composed versions.
 fn composed_forced() -> bool {
     static FORCED: OnceLock<bool> = OnceLock::new();
-    *FORCED.get_or_init(|| std::env::var_os("PBDL_NN_COMPOSED").is_some_and(|v| v == "1"))
+    COMPOSED_HERE.with(|c| c.get())
+        || *FORCED.get_or_init(|| std::env::var_os("PBDL_NN_COMPOSED").is_some_and(|v| v == "1"))
+}
+
+/// Runs `f` with every fused kernel (group norm, GELU, batch norm) replaced by its composed
+/// candle-op version on this thread: the A/B switch for comparing a whole network's training
+/// fused and unfused in one process (`PBDL_NN_COMPOSED=1` does it for a whole process). The
+/// choice is made when the forward pass builds the graph, so run the backward pass of that
+/// graph as usual, inside or outside.
+///
+/// ```
+/// use candle_core::{Device, Tensor};
+/// let x = Tensor::new(&[[-1.0f64, 0.5, 2.0]], &Device::Cpu)?;
+/// let fused = pbdl_core::nn::activation::gelu_erf(&x)?;
+/// let composed = pbdl_core::nn::with_composed(|| pbdl_core::nn::activation::gelu_erf(&x))?;
+/// let diff = (fused - composed)?.abs()?.max_all()?.to_scalar::<f64>()?;
+/// assert!(diff < 1e-15);
+/// # Ok::<(), pbdl_core::Error>(())
+/// ```
+pub fn with_composed<R>(f: impl FnOnce() -> R) -> R {
+    /// Restores the previous setting also when `f` unwinds.
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            COMPOSED_HERE.with(|c| c.set(self.0));
+        }
+    }
+    let _restore = Restore(COMPOSED_HERE.with(|c| c.replace(true)));
+    f()
 }
 
 /// Whether the fused kernels handle `x`: CPU, `f32` or `f64`, and not switched off.

@@ -20,7 +20,8 @@
 //! normalised in `f32` and cast back. [`group_norm`] and [`activation::gelu_erf`] (the hot
 //! ones of the diffusion U-Nets) are fused CPU kernels with hand-written backward passes in
 //! `f32`/`f64`; their composed references stay public ([`group_norm_composed`],
-//! [`activation::gelu_erf_composed`]).
+//! [`activation::gelu_erf_composed`]), and [`with_composed`] runs any code with the composed
+//! versions (A/B comparisons of whole trainings in one process).
 //!
 //! ```
 //! use candle_core::{DType, Device, Module, Tensor};
@@ -44,6 +45,7 @@ pub mod activation;
 pub mod batch_norm;
 mod batch_norm_fused;
 mod fused;
+pub use fused::with_composed;
 mod layers;
 mod norm;
 mod softmax;
