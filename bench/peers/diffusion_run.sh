@@ -19,17 +19,7 @@ threads="${PBDL_THREADS:-2}"
 
 . "$root/bench/peers/venv.sh"
 peer_venv "$venv"
-if ! "$vpy" -c 'import torch' 2>/dev/null; then
-  echo "peers: installing torch (CPU use) from ${PBDL_TORCH_INDEX:-PyPI}" >&2
-  index=()
-  [ -n "${PBDL_TORCH_INDEX:-}" ] && index=(--index-url "$PBDL_TORCH_INDEX")
-  "$vpy" -m pip install --quiet "${index[@]}" torch numpy \
-    || skip "pip install torch failed (no network or no wheel for this platform)"
-fi
-
+peer_torch
 mkdir -p "$(dirname "$out")"
-export OMP_NUM_THREADS="$threads" MKL_NUM_THREADS="$threads" PBDL_THREADS="$threads"
-pin=()
-command -v taskset >/dev/null && pin=(taskset -c "0-$((threads - 1))")
-"${pin[@]}" "$vpy" "$root/bench/peers/acdm_unet_torch.py" --out "$out" "$@" \
+peer_run_pinned "$root/bench/peers/acdm_unet_torch.py" --out "$out" "$@" \
   || skip "acdm_unet_torch.py failed (see above)"

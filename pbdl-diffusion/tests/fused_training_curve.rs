@@ -7,36 +7,16 @@
 //! Bar (set before measuring): every step's loss within 1e-4 relative, the trained weights
 //! within 1e-3 relative (max-norm over all parameters).
 
-use candle_core::{DType, Device, Tensor, Var};
-use pbdl_diffusion::uncertainty::{diffusion, train, Dataset, Normalizer, TrainConfig, WakeCase, WakeConfig};
+use candle_core::{DType, Var};
+use pbdl_diffusion::uncertainty::{diffusion, train, Dataset, Normalizer, TrainConfig, WakeConfig};
 use pbdl_diffusion::unet::{AcdmUnet, AcdmUnetConfig};
 
 mod common;
 
-fn cases() -> Vec<WakeCase> {
-    let (h, w, n) = (8, 8, 8);
-    [100.0, 200.0]
-        .iter()
-        .map(|&re| {
-            let mut v = vec![0f32; n * 2 * h * w];
-            for k in 0..n {
-                for c in 0..2 {
-                    for p in 0..h * w {
-                        let s = (2.0 * std::f32::consts::PI * k as f32 / n as f32 + p as f32 * 0.3).sin();
-                        let amp = [0.1 * re as f32 / 100.0, 0.2][c];
-                        v[(k * 2 + c) * h * w + p] = [1.0, 0.0][c] + amp * (1.0 + p as f32 / 64.0) * s;
-                    }
-                }
-            }
-            WakeCase { re, snapshots: Tensor::from_vec(v, (n, 2, h, w), &Device::Cpu).unwrap() }
-        })
-        .collect()
-}
-
 /// Trains a freshly seeded tiny U-Net and returns the losses and the flattened weights.
 fn run() -> (Vec<f64>, Vec<f32>) {
     let cfg = WakeConfig { out_size: [8, 8], window_origin: [2.0, 2.0], ..Default::default() };
-    let cases = cases();
+    let cases = common::synthetic_wake_cases();
     let norm = Normalizer::fit(&cases.iter().map(|c| &c.snapshots).collect::<Vec<_>>()).unwrap();
     let data = Dataset::new(&cfg, &cases, 5, 300.0, &norm, 0).unwrap();
     let config =

@@ -4,38 +4,17 @@
 //! `pbdl_core::train::TrainLoop`); a port of the loop must reproduce them. Run with
 //! `--nocapture` to print the bits.
 
-use candle_core::{DType, Device, Tensor, Var};
-use pbdl_diffusion::uncertainty::{diffusion, train, Dataset, Normalizer, TrainConfig, WakeCase, WakeConfig};
+use candle_core::{DType, Var};
+use pbdl_diffusion::uncertainty::{diffusion, train, Dataset, Normalizer, TrainConfig, WakeConfig};
 use pbdl_diffusion::unet::{AcdmUnet, AcdmUnetConfig};
 use pbdl_diffusion::Error;
 
 mod common;
 
-/// Two cases of 8 snapshots `m + s sin(2 pi k / 8 + phase)` on an 8 x 8 window.
-fn cases() -> Vec<WakeCase> {
-    let (h, w, n) = (8, 8, 8);
-    [100.0, 200.0]
-        .iter()
-        .map(|&re| {
-            let mut v = vec![0f32; n * 2 * h * w];
-            for k in 0..n {
-                for c in 0..2 {
-                    for p in 0..h * w {
-                        let s = (2.0 * std::f32::consts::PI * k as f32 / n as f32 + p as f32 * 0.3).sin();
-                        let amp = [0.1 * re as f32 / 100.0, 0.2][c];
-                        v[(k * 2 + c) * h * w + p] = [1.0, 0.0][c] + amp * (1.0 + p as f32 / 64.0) * s;
-                    }
-                }
-            }
-            WakeCase { re, snapshots: Tensor::from_vec(v, (n, 2, h, w), &Device::Cpu).unwrap() }
-        })
-        .collect()
-}
-
 #[test]
 fn five_training_steps_are_bit_identical() {
     let cfg = WakeConfig { out_size: [8, 8], window_origin: [2.0, 2.0], ..Default::default() };
-    let cases = cases();
+    let cases = common::synthetic_wake_cases();
     let norm = Normalizer::fit(&cases.iter().map(|c| &c.snapshots).collect::<Vec<_>>()).unwrap();
     let data = Dataset::new(&cfg, &cases, 5, 300.0, &norm, 0).unwrap();
     let config =

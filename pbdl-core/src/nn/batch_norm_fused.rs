@@ -21,6 +21,7 @@
 //! the result does not depend on the thread count. Small inputs run serially
 //! ([`crate::threads::parallel`]).
 
+use super::fused::sum_f64;
 use crate::op::{apply3, dense};
 use crate::op::{Kernel3, Op3};
 use crate::Real;
@@ -140,24 +141,6 @@ fn per_channel(part: &[f64], channels: usize) -> Vec<f64> {
         }
     }
     out
-}
-
-/// `sum f(x_i)` in `f64` over 4 lanes (so the loop vectorises).
-#[inline]
-fn sum_f64<T: Real>(xs: &[T], f: impl Fn(T) -> f64) -> f64 {
-    let mut acc = [0.0f64; 4];
-    let chunks = xs.chunks_exact(4);
-    let tail = chunks.remainder();
-    for c in chunks {
-        for k in 0..4 {
-            acc[k] += f(c[k]);
-        }
-    }
-    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
-    for &v in tail {
-        s += f(v);
-    }
-    s
 }
 
 /// The batch mean and biased variance of every channel (two-pass, in `f64`).

@@ -443,9 +443,10 @@ fn cpu(s: &Storage) -> candle_core::Result<&candle_core::CpuStorage> {
     }
 }
 
-/// `sum f(x_i)` in `f64` over 4 lanes (so the loop vectorises).
+/// `sum f(x_i)` in `f64` over 4 lanes (so the loop vectorises). Shared with the batch norm
+/// kernel.
 #[inline]
-fn sum_f64<T: Real>(xs: &[T], f: impl Fn(T) -> f64) -> f64 {
+pub(super) fn sum_f64<T: Real>(xs: &[T], f: impl Fn(T) -> f64) -> f64 {
     let mut acc = [0.0f64; 4];
     let chunks = xs.chunks_exact(4);
     let tail = chunks.remainder();

@@ -62,3 +62,25 @@ pub fn train_logged(sde: &ToySde, net: &mut ScoreMlp, cfg: &ToyTrainConfig, what
     let rep = train_toy(sde, net, cfg).unwrap();
     println!("{what} in {:.1} s; losses {:?}", rep.seconds, rep.losses);
 }
+
+/// Two synthetic wake cases (Re 100 and 200) of 8 snapshots `m + s sin(2 pi k / 8 + 0.3 p)` on
+/// an 8 x 8 window, for short `uncertainty::train` runs.
+pub fn synthetic_wake_cases() -> Vec<pbdl_diffusion::uncertainty::WakeCase> {
+    let (h, w, n) = (8, 8, 8);
+    [100.0, 200.0]
+        .iter()
+        .map(|&re| {
+            let mut v = vec![0f32; n * 2 * h * w];
+            for k in 0..n {
+                for c in 0..2 {
+                    for p in 0..h * w {
+                        let s = (2.0 * std::f32::consts::PI * k as f32 / n as f32 + p as f32 * 0.3).sin();
+                        let amp = [0.1 * re as f32 / 100.0, 0.2][c];
+                        v[(k * 2 + c) * h * w + p] = [1.0, 0.0][c] + amp * (1.0 + p as f32 / 64.0) * s;
+                    }
+                }
+            }
+            pbdl_diffusion::uncertainty::WakeCase { re, snapshots: Tensor::from_vec(v, (n, 2, h, w), &CPU).unwrap() }
+        })
+        .collect()
+}
