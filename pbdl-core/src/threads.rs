@@ -96,7 +96,12 @@ impl ThreadPolicy {
     pub fn from_env() -> Result<Self> {
         let var = |name| std::env::var(name).ok();
         let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-        Self::resolve(var(THREADS_ENV).as_deref(), var("RAYON_NUM_THREADS").as_deref(), var(SERIAL_BELOW_ENV).as_deref(), cores)
+        Self::resolve(
+            var(THREADS_ENV).as_deref(),
+            var("RAYON_NUM_THREADS").as_deref(),
+            var(SERIAL_BELOW_ENV).as_deref(),
+            cores,
+        )
     }
 
     /// Whether an operation on `work` elements (or cells) should be split over threads.
@@ -151,10 +156,8 @@ pub fn policy() -> ThreadPolicy {
         Err(e) => {
             eprintln!("pbdl: {e}; using the default thread policy");
             let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-            init_with(ThreadPolicy { threads: cores, serial_below: DEFAULT_SERIAL_BELOW }).unwrap_or(ThreadPolicy {
-                threads: 1,
-                serial_below: DEFAULT_SERIAL_BELOW,
-            })
+            init_with(ThreadPolicy { threads: cores, serial_below: DEFAULT_SERIAL_BELOW })
+                .unwrap_or(ThreadPolicy { threads: 1, serial_below: DEFAULT_SERIAL_BELOW })
         }
     }
 }
@@ -170,6 +173,26 @@ pub fn count() -> usize {
     policy().threads
 }
 
+/// Runs `f` with every rayon-parallel operation inside it (pbdl's kernels and candle's own
+/// parallel CPU ops and gemm calls alike) on one thread: `f` runs on a one-thread rayon pool
+/// (built once), where a parallel region runs inline instead of waking a worker. For work made
+/// of many small operations (a 64^2 solver run of a data generator, a batch of tiny matrix
+/// products), whose regions each cost a wake-up and gain nothing; run independent items of such
+/// work side by side instead (one item per thread). Results equal a run with `PBDL_THREADS=1`.
+///
+/// ```
+/// let inside = pbdl_core::threads::serial(rayon::current_num_threads);
+/// assert_eq!(inside, 1);
+/// ```
+pub fn serial<R: Send>(f: impl FnOnce() -> R + Send) -> R {
+    static ONE: OnceLock<Option<rayon::ThreadPool>> = OnceLock::new();
+    match ONE.get_or_init(|| rayon::ThreadPoolBuilder::new().num_threads(1).build().ok()) {
+        Some(pool) => pool.install(f),
+        // No thread could be started: run on the caller (its regions then use the global pool).
+        None => f(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -179,7 +202,10 @@ mod tests {
         let p = ThreadPolicy::resolve(None, None, None, 8).unwrap();
         assert_eq!(p, ThreadPolicy { threads: 8, serial_below: DEFAULT_SERIAL_BELOW });
         assert_eq!(ThreadPolicy::resolve(None, Some("3"), None, 8).unwrap().threads, 3);
-        assert_eq!(ThreadPolicy::resolve(Some("2"), Some("3"), Some("0"), 8).unwrap(), ThreadPolicy { threads: 2, serial_below: 0 });
+        assert_eq!(
+            ThreadPolicy::resolve(Some("2"), Some("3"), Some("0"), 8).unwrap(),
+            ThreadPolicy { threads: 2, serial_below: 0 }
+        );
         assert_eq!(ThreadPolicy::resolve(None, None, None, 0).unwrap().threads, 1);
         for (t, r, s, name) in [
             (Some("two"), None, None, THREADS_ENV),

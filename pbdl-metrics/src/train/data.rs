@@ -191,26 +191,35 @@ pub fn generate(kind: Kind, count: usize, cfg: &DataConfig) -> Result<Vec<Sequen
     if cfg.resolution < 16 {
         return Err(Error::invalid("train::generate", "resolution", "use at least 16 cells per side"));
     }
-    (0..count)
-        .map(|i| {
-            let mut rng = pbdl_core::seed::rng(
-                cfg.seed.wrapping_mul(1_000_003).wrapping_add(kind.code() as u64 * 100_000 + i as u64),
-            );
-            let params = Param::for_kind(kind);
-            let param = params[i % params.len()];
-            // Every other pass over the modes changes the parameter the other way (`f1neg`, ...).
-            let sign = if (i / params.len()) % 2 == 0 { 1.0 } else { -1.0 };
-            let n = cfg.resolution;
-            let frames = match kind {
-                Kind::AdvectionDiffusion | Kind::Burgers => transport(kind, param, sign, n, &mut rng)?,
-                Kind::Smoke => smoke(param, sign, n, &mut rng)?,
-                Kind::Shapes => shapes(i % 4, n, &mut rng)?,
-            };
-            let frames = frames.to_dtype(DType::F32)?;
-            crate::check::finite("train::generate", "frames", &frames)?;
-            Ok(Sequence { kind, param, frames })
-        })
-        .collect()
+    let one = |i: usize| -> Result<Sequence> {
+        let mut rng = pbdl_core::seed::rng(
+            cfg.seed.wrapping_mul(1_000_003).wrapping_add(kind.code() as u64 * 100_000 + i as u64),
+        );
+        let params = Param::for_kind(kind);
+        let param = params[i % params.len()];
+        // Every other pass over the modes changes the parameter the other way (`f1neg`, ...).
+        let sign = if (i / params.len()) % 2 == 0 { 1.0 } else { -1.0 };
+        let n = cfg.resolution;
+        let frames = match kind {
+            Kind::AdvectionDiffusion | Kind::Burgers => transport(kind, param, sign, n, &mut rng)?,
+            Kind::Smoke => smoke(param, sign, n, &mut rng)?,
+            Kind::Shapes => shapes(i % 4, n, &mut rng)?,
+        };
+        let frames = frames.to_dtype(DType::F32)?;
+        crate::check::finite("train::generate", "frames", &frames)?;
+        Ok(Sequence { kind, param, frames })
+    };
+    // Many small operations per sequence: their parallel regions cost more in wake-ups than
+    // they gain (2 threads at 64^2: 1.18x slower than one thread), so small sequences run with
+    // every region inline (`threads::serial`; the numbers do not change, pinned in
+    // tests/data_pin_tests.rs). Running sequences side by side instead was measured and not
+    // kept: smoke 0.68x, but advection-diffusion 1.72x and Burgers 1.41x the one-thread time
+    // (their large temporary tensors page-fault, and two threads fault into one address space).
+    if pbdl_core::threads::parallel(cfg.resolution * cfg.resolution) {
+        (0..count).map(one).collect()
+    } else {
+        pbdl_core::threads::serial(|| (0..count).map(one).collect())
+    }
 }
 
 /// PhiFlow's `Noise(scale=10, smoothness=1)` on an `n x n` periodic grid, `[batch, channels,
