@@ -151,9 +151,12 @@ mod tests {
 
     /// FNV-1a of the f64 bits of a field: a pin of its exact values.
     fn fingerprint(t: &Tensor) -> u64 {
-        t.flatten_all().unwrap().to_vec1::<f64>().unwrap().iter().fold(0xcbf2_9ce4_8422_2325u64, |h, v| {
-            (h ^ v.to_bits()).wrapping_mul(0x0100_0000_01b3)
-        })
+        t.flatten_all()
+            .unwrap()
+            .to_vec1::<f64>()
+            .unwrap()
+            .iter()
+            .fold(0xcbf2_9ce4_8422_2325u64, |h, v| (h ^ v.to_bits()).wrapping_mul(0x0100_0000_01b3))
     }
 
     /// The exact numbers of the metric data generator's noise (11 variants x 2 channels at
