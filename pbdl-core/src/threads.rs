@@ -5,9 +5,10 @@
 //! pbdl kernels), candle's CPU kernels (which ask `RAYON_NUM_THREADS` on every matmul, and
 //! without it count the physical cores by parsing `/proc/cpuinfo` each time: measured, a HIG
 //! Jacobian of 512 rows 799 ms without the variable, 275 ms with it) and gemm (which takes its
-//! thread count from the caller, here [`crate::matmul`]). [`init`] decides once and sets all
-//! three: it builds rayon's global pool with [`ThreadPolicy::threads`] threads and writes
-//! `RAYON_NUM_THREADS` for candle; pbdl's kernels ask [`parallel`] whether a piece of work is
+//! thread count from the caller, here [`crate::matmul`]); candle 0.11 also keeps a pool of its
+//! own for large elementwise ops (threads `candle-bp-N`). [`init`] decides once and sets them
+//! all: it builds rayon's global pool with [`ThreadPolicy::threads`] threads and writes
+//! `RAYON_NUM_THREADS` and `CANDLE_NUM_THREADS` for candle; pbdl's kernels ask [`parallel`] whether a piece of work is
 //! big enough to be split at all (a parallel region costs a worker wake-up: on the 2-core
 //! development machine a 128^2 Taylor-Green RK4 step took 0.46 ms serial and 0.78 ms on 2
 //! threads, so smaller work stays on the calling thread).
@@ -138,8 +139,10 @@ pub fn init_with(wanted: ThreadPolicy) -> Result<ThreadPolicy> {
         // pool's size is what every parallel loop gets, so the policy records it.
         let _ = rayon::ThreadPoolBuilder::new().num_threads(wanted.threads).build_global();
         let threads = rayon::current_num_threads();
-        // candle reads this on every CPU matmul.
+        // candle reads this on every CPU matmul; its own pool for elementwise ops
+        // (`candle-bp-N` threads, built on first use) reads CANDLE_NUM_THREADS first.
         std::env::set_var("RAYON_NUM_THREADS", threads.to_string());
+        std::env::set_var("CANDLE_NUM_THREADS", threads.to_string());
         ThreadPolicy { threads, ..wanted }
     }))
 }
@@ -173,8 +176,9 @@ pub fn count() -> usize {
     policy().threads
 }
 
-/// Runs `f` with every rayon-parallel operation inside it (pbdl's kernels and candle's own
-/// parallel CPU ops and gemm calls alike) on one thread: `f` runs on a one-thread rayon pool
+/// Runs `f` with every rayon-parallel operation inside it (pbdl's kernels, candle's matmuls and
+/// gemm calls) on one thread (candle's separate elementwise pool is not rayon and still splits
+/// its large broadcast ops): `f` runs on a one-thread rayon pool
 /// (built once), where a parallel region runs inline instead of waking a worker. For work made
 /// of many small operations (a 64^2 solver run of a data generator, a batch of tiny matrix
 /// products), whose regions each cost a wake-up and gain nothing; run independent items of such
@@ -233,5 +237,6 @@ mod tests {
         assert_eq!(init_with(ThreadPolicy { threads: p.threads + 1, serial_below: 1 }).unwrap(), p, "fixed once set");
         assert_eq!(p.threads, rayon::current_num_threads());
         assert_eq!(std::env::var("RAYON_NUM_THREADS").unwrap(), p.threads.to_string());
+        assert_eq!(std::env::var("CANDLE_NUM_THREADS").unwrap(), p.threads.to_string());
     }
 }
