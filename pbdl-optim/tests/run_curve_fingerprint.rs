@@ -1,6 +1,11 @@
 //! Pins the exact evaluation losses and step counts of `run_curve` (HIG, Adam, and a run that
 //! diverges), so that moving its frame onto `pbdl_core::train::TrainLoop` changes no number.
 //! The values were recorded from the loop before the move (commit c5f1131).
+//!
+//! The HIG curves (f64, faer) are compared bit for bit. The Adam curve runs through candle's CPU
+//! ops, which are not bit-reproducible run to run on 2 threads (seen: evaluation losses 2 ulp
+//! apart in 4 of 6 runs, with and without `PBDL_THREADS=1`, before and after the move), so it
+//! is compared to 1e-12 relative.
 
 use pbdl_optim::hig::{run_curve, Budget, Curve, HigConfig, Method};
 use pbdl_optim::mlp::{Activation, Mlp};
@@ -70,7 +75,17 @@ fn run_curve_numbers_are_pinned() {
             29,
         ),
     ];
-    for (c, want) in curves().iter().zip(expected) {
-        assert_eq!(fingerprint(c), want);
+    for (i, (c, want)) in curves().iter().zip(expected).enumerate() {
+        let got = fingerprint(c);
+        if i == 1 {
+            // Adam (candle): steps exact, losses to 1e-12 relative.
+            assert_eq!((&got.0, got.2, got.3), (&want.0, want.2, want.3));
+            for (g, w) in got.1.iter().zip(&want.1) {
+                let (g, w) = (f64::from_bits(*g), f64::from_bits(*w));
+                assert!((g - w).abs() <= 1e-12 * w.abs(), "Adam curve: {g} vs {w}");
+            }
+        } else {
+            assert_eq!(got, want);
+        }
     }
 }
