@@ -274,3 +274,49 @@ fn fused_gelu_erf_gradient_check_and_exact_values() {
     let phi1 = (-0.5f64).exp() / (2.0 * std::f64::consts::PI).sqrt();
     assert!((gv[0] - (0.8413447460685429 + phi1)).abs() < 1e-15, "{}", gv[0]);
 }
+
+/// The fused leaky ReLU gives the composed version's values (up to the sign of zero) and
+/// gradients exactly (f32 and f64, with exact zeros in the input where the gradient is the mean slope, small and above two
+/// rayon chunks), and passes a finite-difference check away from the kink.
+#[test]
+fn fused_leaky_relu_equals_composed_and_passes_fd() {
+    for dtype in [DType::F64, DType::F32] {
+        for (k, shape) in [&[4usize, 10][..], &[16, 16, 24, 16]].into_iter().enumerate() {
+            let x = randn(shape, 0.0, 1.0, dtype, 300 + k as u64);
+            // Every 7th element exactly 0 (the kink).
+            let n = x.elem_count();
+            let mask: Vec<f64> = (0..n).map(|i| if i % 7 == 0 { 0.0 } else { 1.0 }).collect();
+            let mask = Tensor::from_vec(mask, shape, &Device::Cpu).unwrap().to_dtype(dtype).unwrap();
+            let x = (x * mask).unwrap();
+            for slope in [0.3, 0.01] {
+                let (yf, gf) =
+                    value_and_grads(&|xs| activation::leaky_relu(&xs[0], slope).unwrap(), std::slice::from_ref(&x), 7);
+                let (yc, gc) = nn::with_composed(|| {
+                    value_and_grads(
+                        &|xs| activation::leaky_relu_composed(&xs[0], slope).unwrap(),
+                        std::slice::from_ref(&x),
+                        7,
+                    )
+                });
+                let xs = vec(&x);
+                for (name, a, b) in [("value", vec(&yf), vec(&yc)), ("gradient", vec(&gf[0]), vec(&gc[0]))] {
+                    let bad = a.iter().zip(&b).position(|(p, q)| p != q);
+                    if let Some(i) = bad {
+                        panic!(
+                            "{name} {dtype:?} {shape:?} slope {slope}: x = {} fused {} composed {}",
+                            xs[i], a[i], b[i]
+                        );
+                    }
+                }
+            }
+        }
+    }
+    // Finite differences in f64, inputs kept away from 0.
+    let x = randn(&[5, 6], 0.0, 1.0, DType::F64, 320);
+    let x = (x.sign().unwrap() * (x.abs().unwrap() + 0.1).unwrap()).unwrap();
+    let leaky = |xs: &[Tensor]| -> candle_core::Result<Tensor> {
+        activation::leaky_relu(&xs[0], 0.3).map_err(|e| candle_core::Error::Msg(e.to_string()))
+    };
+    let report = check_grad(leaky, &[x], &GradCheckOptions::default()).unwrap();
+    assert!(report.max_rel_error < pbdl_core::tolerance::GRAD_CHECK_F64, "{report:?}");
+}

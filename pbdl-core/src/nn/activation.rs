@@ -76,8 +76,19 @@ pub fn elu(x: &Tensor, alpha: f64) -> Result<Tensor> {
     Ok(x.elu(alpha)?)
 }
 
-/// Leaky ReLU: `x` for `x > 0`, `negative_slope * x` otherwise.
+/// Leaky ReLU: `x` for `x > 0`, `negative_slope * x` otherwise. A fused CPU kernel for
+/// `f32`/`f64` (one pass each way; same values and gradients as [`leaky_relu_composed`]),
+/// otherwise the composed version.
 pub fn leaky_relu(x: &Tensor, negative_slope: f64) -> Result<Tensor> {
+    if super::fused::fusable(x) {
+        return Ok(super::fused::leaky_relu(x, negative_slope)?);
+    }
+    leaky_relu_composed(x, negative_slope)
+}
+
+/// [`leaky_relu`] composed from candle ops (`max(x, 0) + slope min(x, 0)`; any dtype and
+/// device); the reference the fused kernel is tested against.
+pub fn leaky_relu_composed(x: &Tensor, negative_slope: f64) -> Result<Tensor> {
     Ok(candle_nn::ops::leaky_relu(x, negative_slope)?)
 }
 
