@@ -320,3 +320,29 @@ fn fused_leaky_relu_equals_composed_and_passes_fd() {
     let report = check_grad(leaky, &[x], &GradCheckOptions::default()).unwrap();
     assert!(report.max_rel_error < pbdl_core::tolerance::GRAD_CHECK_F64, "{report:?}");
 }
+
+/// The fused ReLU gives candle's `relu` values and gradients (gradient 1 at exactly 0), f32 and
+/// f64, small and above two rayon chunks, and passes a finite-difference check.
+#[test]
+fn fused_relu_equals_candles() {
+    for dtype in [DType::F64, DType::F32] {
+        for (k, shape) in [&[4usize, 10][..], &[16, 16, 24, 16]].into_iter().enumerate() {
+            let x = randn(shape, 0.0, 1.0, dtype, 330 + k as u64);
+            let n = x.elem_count();
+            let mask: Vec<f64> = (0..n).map(|i| if i % 5 == 0 { 0.0 } else { 1.0 }).collect();
+            let x = (x * Tensor::from_vec(mask, shape, &Device::Cpu).unwrap().to_dtype(dtype).unwrap()).unwrap();
+            let (yf, gf) = value_and_grads(&|xs| activation::relu(&xs[0]).unwrap(), std::slice::from_ref(&x), 8);
+            let (yc, gc) = value_and_grads(&|xs| xs[0].relu().unwrap(), std::slice::from_ref(&x), 8);
+            assert_eq!(vec(&yf), vec(&yc), "values {dtype:?} {shape:?}");
+            assert_eq!(vec(&gf[0]), vec(&gc[0]), "gradients {dtype:?} {shape:?}");
+        }
+    }
+    // Finite differences in f64, inputs kept away from 0.
+    let x = randn(&[5, 6], 0.0, 1.0, DType::F64, 340);
+    let x = (x.sign().unwrap() * (x.abs().unwrap() + 0.1).unwrap()).unwrap();
+    let relu = |xs: &[Tensor]| -> candle_core::Result<Tensor> {
+        activation::relu(&xs[0]).map_err(|e| candle_core::Error::Msg(e.to_string()))
+    };
+    let report = check_grad(relu, &[x], &GradCheckOptions::default()).unwrap();
+    assert!(report.max_rel_error < pbdl_core::tolerance::GRAD_CHECK_F64, "{report:?}");
+}

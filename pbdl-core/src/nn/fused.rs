@@ -1,5 +1,5 @@
-//! Fused CPU kernels behind [`super::group_norm`], [`super::activation::gelu_erf`] and
-//! [`super::activation::leaky_relu`].
+//! Fused CPU kernels behind [`super::group_norm`], [`super::activation::gelu_erf`],
+//! [`super::activation::leaky_relu`] and [`super::activation::relu`].
 //!
 //! The composed versions (kept as [`super::group_norm_composed`] and
 //! [`super::activation::gelu_erf_composed`]) are exact but make one pass over memory and one
@@ -282,6 +282,54 @@ impl Kernel2 for LeakyReluGrad {
 /// Fused `leaky_relu` (caller checked [`fusable`]).
 pub(crate) fn leaky_relu(x: &Tensor, slope: f64) -> candle_core::Result<Tensor> {
     apply1(x, LeakyRelu { slope })
+}
+
+// ---------------------------------------------------------------- ReLU
+
+/// `max(x, 0)` elementwise with a one-pass backward `grad_y * [x >= 0]` (candle's own rule,
+/// gradient 1 at 0), instead of candle's backward of a comparison, a cast and a product.
+struct Relu;
+
+impl Kernel1 for Relu {
+    fn name(&self) -> &'static str {
+        "relu"
+    }
+    fn output_shape(&self, input: &Shape) -> candle_core::Result<Shape> {
+        Ok(input.clone())
+    }
+    fn forward<T: Real>(&self, x: &[T], _: &Shape, y: &mut [T]) -> candle_core::Result<()> {
+        map1(x, y, |x| if x > T::zero() { x } else { T::zero() });
+        Ok(())
+    }
+}
+
+impl Op1 for Relu {
+    fn backward(&self, x: &Tensor, _y: &Tensor, grad_y: &Tensor) -> candle_core::Result<Tensor> {
+        apply_kernel2(x, grad_y, ReluGrad)
+    }
+}
+
+/// `grad_y * [x >= 0]`, the vector-Jacobian product of [`Relu`].
+struct ReluGrad;
+
+impl Kernel2 for ReluGrad {
+    fn name(&self) -> &'static str {
+        "relu_grad"
+    }
+    fn output_shape(&self, x: &Shape, gy: &Shape) -> candle_core::Result<Shape> {
+        same_shape("relu_grad", x, gy)?;
+        Ok(x.clone())
+    }
+    fn forward<T: Real>(&self, x: &[T], _: &Shape, gy: &[T], _: &Shape, gx: &mut [T]) -> candle_core::Result<()> {
+        // The product (not a select) keeps candle's NaN and signed-zero results.
+        map2(x, gy, gx, |x, gy| gy * if x >= T::zero() { T::one() } else { T::zero() });
+        Ok(())
+    }
+}
+
+/// Fused `relu` (caller checked [`fusable`]).
+pub(crate) fn relu(x: &Tensor) -> candle_core::Result<Tensor> {
+    apply1(x, Relu)
 }
 
 // ---------------------------------------------------------------- group norm
