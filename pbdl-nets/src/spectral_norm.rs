@@ -391,34 +391,13 @@ mod tests {
         let r = pbdl_core::seed::randn(w.dims(), 0.0, 1.0, DType::F64, &Device::Cpu, 4).unwrap();
         let var = Var::from_tensor(&w).unwrap();
         let mut train = sn.clone();
-        let y = train.normalise(var.as_tensor(), true).unwrap();
-        let g1: Vec<f64> = y
-            .mul(&r)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap()
-            .get(var.as_tensor())
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1()
-            .unwrap();
-        let y2 = train.normalise_fixed(var.as_tensor()).unwrap();
-        let g2: Vec<f64> = y2
-            .mul(&r)
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .backward()
-            .unwrap()
-            .get(var.as_tensor())
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .to_vec1()
-            .unwrap();
+        // The gradient of sum(y r) with respect to the weight.
+        let grad = |y: Tensor| -> Vec<f64> {
+            let g = y.mul(&r).unwrap().sum_all().unwrap().backward().unwrap();
+            g.get(var.as_tensor()).unwrap().flatten_all().unwrap().to_vec1().unwrap()
+        };
+        let g1 = grad(train.normalise(var.as_tensor(), true).unwrap());
+        let g2 = grad(train.normalise_fixed(var.as_tensor()).unwrap());
         assert_eq!(g1, g2);
         assert_ne!(train.u().to_vec1::<f64>().unwrap(), sn.u().to_vec1::<f64>().unwrap());
     }

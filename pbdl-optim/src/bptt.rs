@@ -339,16 +339,20 @@ pub(crate) fn run_schedule<S>(
     let model = RefCell::new(model);
     let (mut steps, mut test_loss) = (Vec::new(), Vec::new());
     let (mut agree_sum, mut agree_n) = (0.0, 0usize);
-    let cfg = LoopConfig { steps: schedule.iterations as u64, progress: false, ..Default::default() };
+    // A non-finite test loss is a measurement here (mode F may blow up), recorded while
+    // training goes on; a non-finite training loss stops the run in `step` (`Diverged`).
+    let cfg = LoopConfig {
+        steps: schedule.iterations as u64,
+        progress: false,
+        stop_on_non_finite_eval: false,
+        ..Default::default()
+    };
     let report = TrainLoop::in_memory(Vec::new(), cfg)?
         .evaluate_every(schedule.eval_every.max(1) as u64, |done| -> Result<f64> {
             let value = evaluate(&**model.borrow(), done as usize)?;
             steps.push(done as usize);
             test_loss.push(value);
-            // A non-finite test loss is a measurement here (mode F may blow up), recorded
-            // while training goes on; the loop's guard would stop at it, so it sees a finite
-            // stand-in. A non-finite training loss stops the run in `step` (`Diverged`).
-            Ok(if value.is_finite() { value } else { f64::MAX })
+            Ok(value)
         })
         .run_custom::<crate::Error>(
             |_| schedule.lr,

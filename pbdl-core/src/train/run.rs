@@ -84,6 +84,10 @@ pub struct LoopConfig {
     /// the update that crossed it, which is evaluated and checkpointed like the last one.
     /// `None` (the default): no time limit. For time-vs-loss comparisons at equal budget.
     pub time_budget_seconds: Option<f64>,
+    /// Stop with [`crate::Error::Diverged`] when an evaluation is not finite (the default,
+    /// `true`); `false` records it as a measurement (a test loss that may blow up while
+    /// training goes on).
+    pub stop_on_non_finite_eval: bool,
 }
 
 impl Default for LoopConfig {
@@ -95,6 +99,7 @@ impl Default for LoopConfig {
             clip: ClipConfig::None,
             progress: true,
             time_budget_seconds: None,
+            stop_on_non_finite_eval: true,
         }
     }
 }
@@ -297,8 +302,8 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
     /// the last one (`every = 0`: only first and last). The evaluation's time is not counted in
     /// the step timings or the time budget; its value goes to [`LoopReport::evaluations`] and
     /// to the `eval` column of `loss.csv`. A non-finite value stops the run with
-    /// [`crate::Error::Diverged`] (at step = updates done, quantity `eval`). Replaces an
-    /// earlier evaluation.
+    /// [`crate::Error::Diverged`] (at step = updates done, quantity `eval`) unless
+    /// [`LoopConfig::stop_on_non_finite_eval`] is off. Replaces an earlier evaluation.
     pub fn evaluate_every<E, F>(self, every: u64, eval: F) -> TrainLoop<'a, H, Evaluation<F>>
     where
         F: FnMut(u64) -> std::result::Result<f64, E>,
@@ -331,11 +336,10 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
         };
         let mut opt = optimizer.build(vars.clone())?;
         let clip = self.cfg.clip;
-        let mut no_extra = Vec::new();
-        self.drive(meta, &mut no_extra, |step, guard, _| {
+        self.drive(meta, |step, guard| {
             opt.set_learning_rate(lr_at(step));
             let l = loss_at(step)?;
-            Ok(train_step(step, &l, &mut opt, &vars, &clip, guard)?)
+            Ok((train_step(step, &l, &mut opt, &vars, &clip, guard)?, Vec::new()))
         })
     }
 
@@ -381,23 +385,20 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
         H: AfterStep<E>,
         V: Evaluate<E>,
     {
-        let mut extra = Vec::new();
-        self.drive(meta, &mut extra, |step, guard, extra| {
+        self.drive(meta, |step, guard| {
             let lr = lr_at(step);
             let u = update(step, lr)?;
             guard.check(step, u.loss, u.grad_norm)?;
-            *extra = u.extra;
-            Ok(StepInfo { step, loss: u.loss, grad_norm: u.grad_norm.unwrap_or(f64::NAN), lr })
+            Ok((StepInfo { step, loss: u.loss, grad_norm: u.grad_norm.unwrap_or(f64::NAN), lr }, u.extra))
         })
     }
 
-    /// The frame around one update `step_once(step, guard, extra columns)`: resume point,
+    /// The frame around one update `step_once(step, guard) -> (info, extra columns)`: resume point,
     /// evaluation, time budget, log row, hook, progress, checkpoint (see [`TrainLoop::run`]).
     fn drive<E: From<crate::Error>>(
         mut self,
         meta: impl Fn(u64) -> CheckpointMeta,
-        extra: &mut Vec<(&'static str, f64)>,
-        mut step_once: impl FnMut(u64, &mut NanGuard, &mut Vec<(&'static str, f64)>) -> std::result::Result<StepInfo, E>,
+        mut step_once: impl FnMut(u64, &mut NanGuard) -> std::result::Result<(StepInfo, Vec<(&'static str, f64)>), E>,
     ) -> std::result::Result<LoopReport, E>
     where
         H: AfterStep<E>,
@@ -413,7 +414,9 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
         let mut report = LoopReport { resumed_from: self.start, ..Default::default() };
         let no_updates_left = self.start >= self.cfg.steps;
         if let Some(v) = self.eval.evaluate(self.start, no_updates_left)? {
-            guard.check_value(self.start, "eval", v)?;
+            if self.cfg.stop_on_non_finite_eval {
+                guard.check_value(self.start, "eval", v)?;
+            }
             report.evaluations.push((self.start, v));
         }
         let progress = if self.cfg.progress { Progress::new(self.cfg.steps) } else { Progress::hidden(self.cfg.steps) };
@@ -421,9 +424,8 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
         let mut train_seconds = 0.0;
         let mut row: Vec<(&str, f64)> = Vec::new();
         for step in self.start..self.cfg.steps {
-            extra.clear();
             let t = Instant::now();
-            let info = step_once(step, &mut guard, extra)?;
+            let (info, extra) = step_once(step, &mut guard)?;
             let dt = t.elapsed().as_secs_f64();
             train_seconds += dt;
             report.step_seconds.push(dt);
@@ -433,7 +435,9 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
             let last = done == self.cfg.steps || out_of_time;
             let evaluated = self.eval.evaluate(done, last)?;
             if let Some(v) = evaluated {
-                guard.check_value(done, "eval", v)?;
+                if self.cfg.stop_on_non_finite_eval {
+                    guard.check_value(done, "eval", v)?;
+                }
                 report.evaluations.push((done, v));
             }
             if let Some(log) = log.as_mut() {
@@ -443,7 +447,7 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
                     row.push(("grad_norm", info.grad_norm));
                 }
                 row.push(("seconds", train_seconds));
-                row.extend(extra.iter().copied());
+                row.extend(extra);
                 if let Some(v) = evaluated {
                     row.push(("eval", v));
                 }
@@ -644,5 +648,14 @@ mod tests {
             .run_custom::<crate::Error>(|_| 0.1, CheckpointMeta::at, |_, _| Ok(Update::loss(1.0)))
             .unwrap_err();
         assert!(matches!(&e, crate::Error::Diverged { step: 4, quantity, .. } if quantity == "eval"), "{e}");
+        // With the evaluation guard off, the same evaluations are recorded and the run completes.
+        let cfg = LoopConfig { steps: 10, progress: false, stop_on_non_finite_eval: false, ..Default::default() };
+        let report = TrainLoop::in_memory(Vec::new(), cfg)
+            .unwrap()
+            .evaluate_every(2, |done| -> Result<f64> { Ok(if done == 4 { f64::INFINITY } else { 0.0 }) })
+            .run_custom::<crate::Error>(|_| 0.1, CheckpointMeta::at, |_, _| Ok(Update::loss(1.0)))
+            .unwrap();
+        assert_eq!(report.losses.len(), 10);
+        assert_eq!(report.evaluations[2], (4, f64::INFINITY));
     }
 }

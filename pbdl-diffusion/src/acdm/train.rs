@@ -175,7 +175,7 @@ pub fn train(model: &Model, seqs: &[Tensor], config: &TrainConfig, dir: Option<&
         dir: dir.map(Path::to_path_buf),
         clip: ClipConfig::Norm { max_norm: config.clip_norm },
         progress: true,
-        time_budget_seconds: None,
+        ..Default::default()
     };
     let run = TrainLoop::resume(model.varmap(), loop_cfg)?;
     // A resumed run draws other windows than the first pass did.

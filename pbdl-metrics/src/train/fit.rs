@@ -282,7 +282,7 @@ pub fn train(net: &mut MetricNet, data: &[Sequence], cfg: &TrainConfig) -> Resul
         dir: None,
         clip: cfg.clip,
         progress: cfg.progress,
-        time_budget_seconds: None,
+        ..Default::default()
     };
     // The loss reads the network, the hook clamps and recalibrates it; both draw from `rng`.
     let net = RefCell::new(net);

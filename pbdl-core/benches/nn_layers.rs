@@ -1,0 +1,76 @@
+//! Forward + backward of the fused NN kernels against their composed candle versions, and of
+//! the real FFT, on the WeatherBench ResNet's activation size (batch 4, 128 channels, 32x64,
+//! f32; one conv output of that network).
+//!
+//! * `leaky_relu` (slope 0.3): `nn::activation::leaky_relu` (fused) vs `leaky_relu_composed`;
+//! * `batch_norm_train` (+ LeakyReLU epilogue): fused vs `batch_norm_train_composed`;
+//! * `rfft2`: `fft::rfft2` then `irfft2`, forward + backward.
+//!
+//! The backward uses a dense random output gradient (`sum(y * r)`). Run with
+//! `cargo bench -p pbdl-core --bench nn_layers`.
+// criterion's macros generate undocumented functions.
+#![allow(missing_docs)]
+
+use candle_core::{DType, Device, Tensor, Var};
+use criterion::{criterion_group, Criterion};
+use pbdl_core::nn::activation::{leaky_relu, leaky_relu_composed};
+use pbdl_core::nn::{batch_norm_train, batch_norm_train_composed, Activation};
+use std::hint::black_box;
+use std::time::Duration;
+
+const SHAPE: (usize, usize, usize, usize) = (4, 128, 32, 64);
+
+fn randn(shape: (usize, usize, usize, usize), seed: u64) -> Tensor {
+    pbdl_core::seed::randn(shape, 0.0, 1.0, DType::F32, &Device::Cpu, seed).unwrap()
+}
+
+/// Forward `f` on the variables, then the gradients of `sum(f * r)` with respect to them.
+fn fwd_bwd(vars: &[&Var], r: &Tensor, f: &dyn Fn(&[&Tensor]) -> Tensor) {
+    let ts: Vec<&Tensor> = vars.iter().map(|v| v.as_tensor()).collect();
+    let y = f(&ts);
+    let grads = y.mul(r).unwrap().sum_all().unwrap().backward().unwrap();
+    black_box(vars.iter().filter(|v| grads.get(v.as_tensor()).is_some()).count());
+}
+
+fn bench(c: &mut Criterion) {
+    let x = Var::from_tensor(&randn(SHAPE, 0)).unwrap();
+    let r = randn(SHAPE, 1);
+    let leaky = 0.3;
+    let mut g = c.benchmark_group("nn_layers_b4_c128_32x64");
+    g.sample_size(20).measurement_time(Duration::from_secs(5));
+    g.bench_function("leaky_relu/fused", |b| b.iter(|| fwd_bwd(&[&x], &r, &|t| leaky_relu(t[0], leaky).unwrap())));
+    g.bench_function("leaky_relu/composed", |b| {
+        b.iter(|| fwd_bwd(&[&x], &r, &|t| leaky_relu_composed(t[0], leaky).unwrap()))
+    });
+    let w = Var::ones(SHAPE.1, DType::F32, &Device::Cpu).unwrap();
+    let bias = Var::zeros(SHAPE.1, DType::F32, &Device::Cpu).unwrap();
+    let act = Activation::LeakyRelu { negative_slope: leaky };
+    g.bench_function("batch_norm_train/fused", |b| {
+        b.iter(|| {
+            fwd_bwd(&[&x, &w, &bias], &r, &|t| batch_norm_train(t[0], Some(t[1]), Some(t[2]), 1e-5, act).unwrap().0)
+        })
+    });
+    g.bench_function("batch_norm_train/composed", |b| {
+        b.iter(|| {
+            fwd_bwd(&[&x, &w, &bias], &r, &|t| {
+                batch_norm_train_composed(t[0], Some(t[1]), Some(t[2]), 1e-5, act).unwrap().0
+            })
+        })
+    });
+    g.bench_function("rfft2_irfft2", |b| {
+        b.iter(|| {
+            fwd_bwd(&[&x], &r, &|t| {
+                let z = pbdl_core::fft::rfft2(t[0]).unwrap();
+                pbdl_core::fft::irfft2(&z, SHAPE.3).unwrap()
+            })
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+fn main() {
+    pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers");
+    benches();
+    criterion::Criterion::default().configure_from_args().final_summary();
+}
