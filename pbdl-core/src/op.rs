@@ -269,7 +269,7 @@ macro_rules! forward_methods {
 impl<K: Op1> CustomOp1 for WithGrad<K> {
     forward_methods!(run1, s: l);
     fn bwd(&self, x: &Tensor, y: &Tensor, gy: &Tensor) -> candle_core::Result<Option<Tensor>> {
-        Ok(Some(self.0.backward(x, y, gy)?))
+        Ok(if_tracked(x, self.0.backward(x, y, gy)?))
     }
 }
 
@@ -287,7 +287,7 @@ impl<K: Op2> CustomOp2 for WithGrad<K> {
         gy: &Tensor,
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
         let (ga, gb) = self.0.backward(a, b, y, gy)?;
-        Ok((Some(ga), Some(gb)))
+        Ok((if_tracked(a, ga), if_tracked(b, gb)))
     }
 }
 
@@ -306,12 +306,19 @@ impl<K: Op3> CustomOp3 for WithGrad<K> {
         gy: &Tensor,
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
         let (ga, gb, gc) = self.0.backward(a, b, c, y, gy)?;
-        Ok((Some(ga), Some(gb), Some(gc)))
+        Ok((if_tracked(a, ga), if_tracked(b, gb), if_tracked(c, gc)))
     }
 }
 
 impl<K: Kernel3> CustomOp3 for NoGrad<K> {
     forward_methods!(run3, s1: l1, s2: l2, s3: l3);
+}
+
+/// The gradient `g` of input `t` for candle's gradient store, or `None` when `t` tracks no
+/// gradient (a constant): candle would otherwise allocate a full-size zero buffer for `t` and
+/// add `g` to it, work that nothing can read.
+fn if_tracked(t: &Tensor, g: Tensor) -> Option<Tensor> {
+    t.track_op().then_some(g)
 }
 
 /// An explicit zero gradient of the shape of `t`, without allocating its full size (a

@@ -4,6 +4,7 @@
 
 use candle_core::{DType, Device, Module, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
+use pbdl_core::conv::PaddingMode::{Circular, Zeros};
 use pbdl_core::conv::{
     conv, conv1d, conv2d, conv3d, output_size, Conv1dParams, Conv2dParams, Conv3dParams, ConvLayerConfig, ConvParams,
 };
@@ -149,13 +150,18 @@ fn conv2d_passes_gradient_check() {
         Conv2dParams { stride: [2, 1], padding: [1, 2], dilation: [1, 2], ..Default::default() },
         Conv2dParams::default().padding(2).dilation(2).stride(2).circular(),
         Conv2dParams::default().padding(1).circular(),
+        // Periodic in x only (a lat-lon grid), also strided.
+        Conv2dParams { padding_mode: [Zeros, Circular], ..Conv2dParams::default().padding(1) },
+        Conv2dParams { padding_mode: [Circular, Zeros], ..Conv2dParams::default().padding(2).stride(2) },
     ] {
         grad_check(|t| Ok(conv2d(&t[0], &t[1], None, &p)?), &[x.clone(), w.clone()], &format!("{p:?}"));
     }
     // Depthwise: groups == in_channels, two filters per channel.
     let wd = randn(&[6, 1, 3, 3], DType::F64, 6);
     let p = Conv2dParams::default().padding(1).groups(3).circular();
-    grad_check(|t| Ok(conv2d(&t[0], &t[1], None, &p)?), &[x.clone(), wd], "depthwise circular");
+    grad_check(|t| Ok(conv2d(&t[0], &t[1], None, &p)?), &[x.clone(), wd.clone()], "depthwise circular");
+    let p = Conv2dParams { padding_mode: [Zeros, Circular], ..p };
+    grad_check(|t| Ok(conv2d(&t[0], &t[1], None, &p)?), &[x.clone(), wd], "depthwise periodic in x");
 }
 
 #[test]
@@ -201,10 +207,9 @@ fn naive_conv3d(x: &Tensor, w: &Tensor, p: &Conv3dParams) -> Tensor {
     let out: Vec<usize> =
         (0..3).map(|a| (n[a] + 2 * p.padding[a] - p.dilation[a] * (k[a] - 1) - 1) / p.stride[a] + 1).collect();
     let og = o / p.groups;
-    let circular = p.padding_mode == pbdl_core::conv::PaddingMode::Circular;
     let idx = |a: usize, o: usize, t: usize| -> Option<usize> {
         let i = (o * p.stride[a] + t * p.dilation[a]) as isize - p.padding[a] as isize;
-        if circular {
+        if p.is_circular(a) {
             Some(i.rem_euclid(n[a] as isize) as usize)
         } else {
             (0..n[a] as isize).contains(&i).then_some(i as usize)
@@ -263,6 +268,22 @@ fn conv3d_matches_a_direct_loop() {
         ([2, 2, 4, 4, 4], [2, 1, 3, 3, 3], Conv3dParams::default().padding(2).groups(2).circular()),
         ([1, 2, 7, 3, 5], [3, 2, 2, 2, 2], Conv3dParams::default().padding(1).stride(2).circular()),
         ([2, 3, 3, 4, 5], [5, 3, 1, 1, 1], Conv3dParams::default()),
+        // Periodic along some axes only (im2col and direct depthwise paths).
+        (
+            [2, 3, 4, 5, 6],
+            [4, 3, 3, 3, 3],
+            Conv3dParams { padding_mode: [Zeros, Circular, Circular], ..Conv3dParams::default().padding(1) },
+        ),
+        (
+            [1, 4, 5, 4, 7],
+            [4, 1, 3, 3, 3],
+            Conv3dParams { padding_mode: [Circular, Zeros, Circular], ..Conv3dParams::default().padding(1).groups(4) },
+        ),
+        (
+            [1, 2, 5, 6, 7],
+            [2, 2, 2, 3, 3],
+            Conv3dParams { padding_mode: [Zeros, Zeros, Circular], ..Conv3dParams::default().padding(2).stride(2) },
+        ),
     ];
     for (i, (xs, ws, p)) in cases.iter().enumerate() {
         let x = randn(xs, DType::F64, 20 + i as u64);

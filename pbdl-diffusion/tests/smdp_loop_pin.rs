@@ -163,9 +163,11 @@ fn heat_training_is_pinned() {
         let losses: Vec<(usize, u64)> = rep.losses.iter().map(|&(u, l)| (u, l.to_bits())).collect();
         let lit: Vec<String> = losses.iter().map(|(u, l)| format!("({u}, {l:#018x})")).collect();
         println!("PIN heat {dtype:?}: losses [{}] params {:#018x}", lit.join(", "), fnv(heat_params(&net)));
-        // Recorded before the port onto TrainLoop.
+        // Recorded before the port onto TrainLoop. The f32 loss after 12 updates moved by one
+        // f32 rounding (0x3f215addfc -> 0x3f215addf8, 1.5e-8 relative) when convolutions got
+        // their own bias-gradient sum (per channel, instead of candle's strided reduction).
         let want: &[(usize, u64)] = match dtype {
-            DType::F32 => &[(4, 0x3f20028678000000), (8, 0x3f209d65ac000000), (12, 0x3f215addfc000000)],
+            DType::F32 => &[(4, 0x3f20028678000000), (8, 0x3f209d65ac000000), (12, 0x3f215addf8000000)],
             _ => &[(4, 0x3f200286678cdf09), (8, 0x3f209d66292e7533), (12, 0x3f215ade8ac057e5)],
         };
         assert_eq!(losses, want, "{dtype:?}");

@@ -17,8 +17,8 @@
 //! replicated (numpy's legacy behaviour). Zeros are a candle `cat`; the other modes are an
 //! `index_select` along the axis, whose gradient sums the copies back onto their source.
 //! [`crate::Padding`] (what [`crate::PaddedConv2d`] uses) covers the conv-layer cases; its
-//! `PeriodicX` is `pad_per_axis(x, &[(0, 0, Zeros), (p, p, Periodic)])` followed by a conv with
-//! zero padding `p` along y.
+//! `PeriodicX` computes what `pad_per_axis(x, &[(0, 0, Zeros), (p, p, Periodic)])` followed by a conv with
+//! zero padding `p` along y computes, without the padded copy.
 
 use crate::{Error, Result};
 use candle_core::Tensor;

@@ -1,16 +1,16 @@
 //! What a convolution sees beyond the border, and a 2D convolution layer that applies it.
 //!
-//! `pbdl_core::conv` pads with zeros or periodically, one mode for all axes. Global weather
-//! fields are periodic in longitude (x, the last axis) but not in latitude (y): WeatherBench's
-//! `PeriodicConv2D` pads x circularly and y with zeros. [`Padding::PeriodicX`] does the same:
-//! the layer copies `pad` columns from each side of the input to the other (a candle `cat`, so
-//! gradients flow), then convolves with zero padding along y only.
+//! Global weather fields are periodic in longitude (x, the last axis) but not in latitude (y):
+//! WeatherBench's `PeriodicConv2D` pads x circularly and y with zeros. [`Padding::PeriodicX`]
+//! does the same through `pbdl_core::conv`'s per-axis padding modes, inside the convolution's
+//! gather (no padded copy of the input, no extra nodes in the gradient graph).
 
 use crate::layers::conv2d_layer;
 use crate::{Error, Result};
 use candle_core::{Module, Tensor};
 use candle_nn::VarBuilder;
-use pbdl_core::conv::{Conv2d, Conv2dParams};
+use pbdl_core::conv::{Conv2d, Conv2dParams, PaddingMode};
+use pbdl_core::nn::Activation;
 use serde::{Deserialize, Serialize};
 
 /// How a [`PaddedConv2d`] extends its input beyond the border.
@@ -23,7 +23,7 @@ pub enum Padding {
     /// Periodic along y and x (PyTorch's `padding_mode="circular"`).
     Periodic,
     /// Periodic along x (longitude), zeros along y (latitude), as WeatherBench's
-    /// `PeriodicConv2D`. Needs `pad <= width`.
+    /// `PeriodicConv2D` (a `pad` wider than the field wraps around it more than once).
     PeriodicX,
 }
 
@@ -78,7 +78,9 @@ impl PaddedConv2d {
         let params = match padding {
             Padding::Zeros => base.padding(pad),
             Padding::Periodic => base.padding(pad).circular(),
-            Padding::PeriodicX => Conv2dParams { padding: [pad, 0], ..base },
+            Padding::PeriodicX => {
+                Conv2dParams { padding_mode: [PaddingMode::Zeros, PaddingMode::Circular], ..base.padding(pad) }
+            }
         };
         Ok(Self { conv: conv2d_layer(vb, c_in, c_out, kernel, params, true)?, pad, padding })
     }
@@ -111,25 +113,35 @@ impl PaddedConv2d {
     /// The convolution of `x` `[batch, in, y, x]`.
     ///
     /// # Errors
-    /// [`Error::ShapeMismatch`] for a wrong rank, or a width below `pad` with
-    /// [`Padding::PeriodicX`]; pbdl-core's errors for wrong channels or a too small input.
+    /// [`Error::ShapeMismatch`] for a wrong rank, or an empty x axis with periodic padding;
+    /// pbdl-core's errors for wrong channels or a too small input.
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        self.check_input(x)?;
+        Ok(self.conv.forward(x)?)
+    }
+
+    /// `act(self.forward(x))`, with the bias and a ReLU or LeakyReLU fused into the
+    /// convolution (see `pbdl_core::conv::conv_act`).
+    ///
+    /// # Errors
+    /// As [`PaddedConv2d::forward`].
+    pub fn forward_act(&self, x: &Tensor, act: Activation) -> Result<Tensor> {
+        self.check_input(x)?;
+        Ok(self.conv.forward_act(x, act)?)
+    }
+
+    fn check_input(&self, x: &Tensor) -> Result<()> {
         if x.rank() != 4 {
             return Err(Error::shape("PaddedConv2d input", "[batch, channel, y, x]", x.dims()));
         }
-        if self.padding != Padding::PeriodicX || self.pad == 0 {
-            return Ok(self.conv.forward(x)?);
-        }
-        let (w, p) = (x.dim(3)?, self.pad);
-        if w < p {
+        if matches!(self.padding, Padding::Periodic | Padding::PeriodicX) && self.pad > 0 && x.dim(3)? == 0 {
             return Err(Error::shape(
-                format!("PaddedConv2d input (periodic x padding of {p} needs at least {p} columns)"),
-                format!("[batch, channel, y, >= {p}]"),
+                "PaddedConv2d input (periodic padding needs at least one column)",
+                "[batch, channel, y, >= 1]",
                 x.dims(),
             ));
         }
-        let wrapped = Tensor::cat(&[&x.narrow(3, w - p, p)?, x, &x.narrow(3, 0, p)?], 3)?;
-        Ok(self.conv.forward(&wrapped)?)
+        Ok(())
     }
 }
 

@@ -70,7 +70,7 @@ impl Padding {
                     let s = i - p;
                     if (0..n).contains(&s) {
                         s as usize
-                    } else if g.circular {
+                    } else if g.circular[a] {
                         s.rem_euclid(n) as usize
                     } else {
                         OUTSIDE
@@ -399,23 +399,26 @@ pub(crate) fn grad_input<T: Real>(g: &Geometry, gy: &[T], w: &[T], gx: &mut [T])
         // with the flipped kernel gives the gradient on the padded plane. With zero padding only
         // the input part of that plane is computed (`origin` = padding).
         let ext = [0, 1, 2].map(|a| g.dilation[a] * (g.kernel[a] - 1));
-        let gpad = Geometry { input: g.output, padding: ext, circular: false, ..*g };
+        // With any periodic axis the gradient is computed on the whole padded plane and folded
+        // back (periodic axes wrap, zero-padded ones drop their border).
+        let periodic = g.circular.contains(&true);
+        let gpad = Geometry { input: g.output, padding: ext, circular: [false; 3], ..*g };
         let gpad = Padding::new(&gpad);
         let win = Window {
             src_dims: gpad.dims,
-            out_dims: if g.circular { pad.dims } else { g.input },
-            origin: if g.circular { [0; 3] } else { g.padding },
+            out_dims: if periodic { pad.dims } else { g.input },
+            origin: if periodic { [0; 3] } else { g.padding },
             kernel: g.kernel,
             stride: [1; 3],
             dilation: g.dilation,
         };
-        let plane = if g.circular { pad.len() } else { 0 };
+        let plane = if periodic { pad.len() } else { 0 };
         let flipped: Vec<T> = w[..g.c_out * taps].chunks_exact(taps).flat_map(|wc| wc.iter().rev()).copied().collect();
         let scratch = || (vec![T::zero(); gpad.len()], vec![T::zero(); plane]);
         units.par_chunks_mut(in_len).enumerate().for_each_init(scratch, |(gyp, gxp), (u, gxu)| {
             let wf = &flipped[(u % g.c_in) * taps..][..taps];
             gpad.fill(&gy[u * out_len..][..out_len], gyp);
-            if g.circular {
+            if periodic {
                 correlate(&win, gyp, wf, T::zero(), gxp);
                 pad.fold(gxp, gxu);
             } else {

@@ -2,6 +2,7 @@
 
 use super::backward::{grad_input_tensor, grad_weight_tensor};
 use super::depthwise;
+use super::epilogue::Epilogue;
 use super::geometry::{expect_shape, Geometry};
 use super::im2col::Plan;
 use crate::matmul::{matmul, split, Mat};
@@ -15,8 +16,25 @@ use rayon::prelude::*;
 /// Work is split into (image, group) units; each unit writes its own contiguous block of `y`,
 /// so units run in parallel.
 pub(crate) fn conv_forward<T: Real>(g: &Geometry, x: &[T], w: &[T], y: &mut [T]) {
+    conv_forward_epilogue(g, x, w, None, y)
+}
+
+/// [`conv_forward`] followed, tile by tile while the tile is in cache, by adding a bias per
+/// output channel and an activation (`epilogue`).
+pub(crate) fn conv_forward_epilogue<T: Real>(
+    g: &Geometry,
+    x: &[T],
+    w: &[T],
+    epilogue: Option<(&[T], Epilogue)>,
+    y: &mut [T],
+) {
     if depthwise::handles(g) {
-        return depthwise::forward(g, x, w, None, y);
+        depthwise::forward(g, x, w, None, y);
+        if let Some((bias, e)) = epilogue {
+            let out_len = g.out_len();
+            y.par_chunks_mut(out_len).enumerate().for_each(|(i, plane)| e.apply(plane, bias[i % g.c_out]));
+        }
+        return;
     }
     let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
     let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);
@@ -43,6 +61,11 @@ pub(crate) fn conv_forward<T: Real>(g: &Geometry, x: &[T], w: &[T], y: &mut [T])
                 Mat { data: col.as_slice(), rs: n, cs: 1 }
             };
             matmul(&mut yu[off..], out_len, false, wg, cols, (cout_g, n, kg), T::one(), par);
+            if let Some((bias, e)) = epilogue {
+                for (o, row) in yu.chunks_mut(out_len).enumerate() {
+                    e.apply(&mut row[off..off + n], bias[grp * cout_g + o]);
+                }
+            }
         }
     });
 }

@@ -25,7 +25,8 @@ pub(crate) struct Geometry {
     pub stride: [usize; 3],
     pub padding: [usize; 3],
     pub dilation: [usize; 3],
-    pub circular: bool,
+    /// Per axis: periodic (true) or zero padding beyond the border.
+    pub circular: [bool; 3],
     /// Whether geometries the direct depthwise kernels handle use them (otherwise im2col).
     pub direct: bool,
 }
@@ -126,7 +127,7 @@ impl Geometry {
             stride: [1; 3],
             padding: [0; 3],
             dilation: [1; 3],
-            circular: p.padding_mode == PaddingMode::Circular,
+            circular: [false; 3],
             direct: super::depthwise::direct_by_default(),
         };
         let p3 = p.to_3d();
@@ -136,6 +137,7 @@ impl Geometry {
         geo.stride = p3.stride;
         geo.padding = p3.padding;
         geo.dilation = p3.dilation;
+        geo.circular = p3.padding_mode.map(|m| m == PaddingMode::Circular);
         for a in 0..3 {
             let extent = geo.dilation[a] * (geo.kernel[a] - 1) + 1;
             let padded = geo.input[a] + 2 * geo.padding[a];

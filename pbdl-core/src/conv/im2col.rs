@@ -46,7 +46,7 @@ fn tap_index(geo: &Geometry, axis: usize, t: usize, o: usize) -> usize {
     let i = (o * geo.stride[axis] + t * geo.dilation[axis]) as isize - geo.padding[axis] as isize;
     if (0..n).contains(&i) {
         i as usize
-    } else if geo.circular {
+    } else if geo.circular[axis] {
         i.rem_euclid(n) as usize
     } else {
         OUTSIDE

@@ -1,6 +1,7 @@
 //! Convolution layers for building networks: weights from a `VarBuilder`, `candle_nn::Module`.
 
 use super::params::ConvParams;
+use crate::nn::Activation;
 use crate::{Error, Result};
 use candle_core::Tensor;
 use candle_nn::{Init, Module, VarBuilder};
@@ -24,7 +25,10 @@ use serde::{Deserialize, Serialize};
 /// # Ok::<(), pbdl_core::Error>(())
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(bound(serialize = "[usize; N]: Serialize", deserialize = "[usize; N]: Deserialize<'de>"))]
+#[serde(bound(
+    serialize = "[usize; N]: Serialize, [super::PaddingMode; N]: Serialize",
+    deserialize = "[usize; N]: Deserialize<'de>, [super::PaddingMode; N]: Deserialize<'de>"
+))]
 pub struct ConvLayerConfig<const N: usize> {
     /// Channels of the input.
     pub in_channels: usize,
@@ -158,6 +162,14 @@ impl<const N: usize> Conv<N> {
     /// Stride, padding, dilation, groups and padding mode.
     pub fn params(&self) -> &ConvParams<N> {
         &self.params
+    }
+
+    /// `act(conv(x) + bias)`, fused into one op where [`super::conv_act`] can.
+    ///
+    /// # Errors
+    /// As [`super::conv`].
+    pub fn forward_act(&self, x: &Tensor, act: Activation) -> Result<Tensor> {
+        super::conv_act(x, &self.weight, self.bias.as_ref(), &self.params, act)
     }
 }
 

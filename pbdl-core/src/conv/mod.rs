@@ -38,6 +38,7 @@
 
 mod backward;
 mod depthwise;
+mod epilogue;
 mod forward;
 mod geometry;
 mod im2col;
@@ -50,8 +51,10 @@ pub use params::{Conv1dParams, Conv2dParams, Conv3dParams, ConvParams, PaddingMo
 pub use transpose::{conv_transpose, conv_transpose2d};
 
 use crate::error::check_float;
+use crate::nn::Activation;
 use crate::{Error, Result};
 use candle_core::Tensor;
+use epilogue::Epilogue;
 use geometry::Geometry;
 
 /// `N`-dimensional convolution (`N` = 1, 2 or 3) of `x` with `weight`, plus `bias` per output
@@ -71,7 +74,42 @@ pub fn conv<const N: usize>(
     bias: Option<&Tensor>,
     params: &ConvParams<N>,
 ) -> Result<Tensor> {
-    conv_with(x, weight, bias, params, None)
+    conv_with(x, weight, bias, params, None, Activation::Identity)
+}
+
+/// `act(conv(x, weight) + bias)`, with the bias and a [`Activation::Relu`] or
+/// [`Activation::LeakyRelu`] (positive slope) fused into the convolution: one op in the
+/// gradient graph instead of three, and no separate pass for the bias gradient. Other
+/// activations are applied after the convolution. Shapes and errors as [`conv`].
+///
+/// The gradient at a pre-activation of exactly 0 is the mean of both slopes for LeakyReLU (as
+/// [`crate::nn::activation::leaky_relu`]) and 0 for ReLU (PyTorch's rule; the unfused
+/// [`crate::nn::activation::relu`] uses 1). Inside [`crate::nn::with_composed`] nothing is fused.
+///
+/// ```
+/// use candle_core::{DType, Device, Tensor, Var};
+/// use pbdl_core::conv::{conv2d, conv_act, Conv2dParams};
+/// use pbdl_core::nn::Activation;
+///
+/// let dev = Device::Cpu;
+/// let x = Tensor::randn(0f32, 1.0, (2, 4, 8, 8), &dev)?;
+/// let w = Var::randn(0f32, 0.2, (6, 4, 3, 3), &dev)?;
+/// let b = Var::randn(0f32, 0.1, 6, &dev)?;
+/// let p = Conv2dParams::default().padding(1);
+/// let act = Activation::LeakyRelu { negative_slope: 0.3 };
+/// let fused = conv_act(&x, &w, Some(&b), &p, act)?;
+/// let unfused = act.apply(&conv2d(&x, &w, Some(&b), &p)?)?;
+/// assert_eq!(fused.flatten_all()?.to_vec1::<f32>()?, unfused.flatten_all()?.to_vec1::<f32>()?);
+/// # Ok::<(), pbdl_core::Error>(())
+/// ```
+pub fn conv_act<const N: usize>(
+    x: &Tensor,
+    weight: &Tensor,
+    bias: Option<&Tensor>,
+    params: &ConvParams<N>,
+    act: Activation,
+) -> Result<Tensor> {
+    conv_with(x, weight, bias, params, None, act)
 }
 
 /// [`conv`] forced onto the im2col + matrix-product path even where a direct kernel exists
@@ -84,7 +122,7 @@ pub fn conv_im2col<const N: usize>(
     bias: Option<&Tensor>,
     params: &ConvParams<N>,
 ) -> Result<Tensor> {
-    conv_with(x, weight, bias, params, Some(false))
+    conv_with(x, weight, bias, params, Some(false), Activation::Identity)
 }
 
 /// Whether [`conv`] runs the direct depthwise kernels for an input of shape `x`, a weight of
@@ -94,13 +132,14 @@ pub fn uses_direct_kernel<const N: usize>(x: &[usize], w: &[usize], params: &Con
     Ok(depthwise::handles(&Geometry::new("conv::uses_direct_kernel", x, w, params)?))
 }
 
-/// [`conv`], with `direct` overriding whether direct kernels may be used.
+/// [`conv_act`], with `direct` overriding whether direct kernels may be used.
 fn conv_with<const N: usize>(
     x: &Tensor,
     weight: &Tensor,
     bias: Option<&Tensor>,
     params: &ConvParams<N>,
     direct: Option<bool>,
+    activation: Activation,
 ) -> Result<Tensor> {
     const OP: &str = "conv";
     let mut geo = Geometry::new(OP, x.dims(), weight.dims(), params)?;
@@ -143,17 +182,23 @@ fn conv_with<const N: usize>(
         }
     }
     if let (Some(b), true) = (bias, depthwise::handles(&geo)) {
-        return Ok(depthwise::conv_bias_tensor(&geo, x, weight, b)?);
+        let y = depthwise::conv_bias_tensor(&geo, x, weight, b)?;
+        return activation.apply(&y);
     }
-    let y = forward::conv_tensor(&geo, x, weight)?;
-    Ok(match bias {
-        None => y,
-        Some(b) => {
-            let mut shape = vec![1; N + 2];
-            shape[1] = geo.c_out;
-            y.broadcast_add(&b.reshape(shape)?)?
+    let fused = if crate::nn::fused_allowed() { Epilogue::of(activation) } else { None };
+    match (fused, bias) {
+        (Some(Epilogue::Identity), None) => Ok(forward::conv_tensor(&geo, x, weight)?),
+        (Some(e), _) => Ok(epilogue::conv_bias_act_tensor(&geo, x, weight, bias, e)?),
+        (None, _) => {
+            let mut y = forward::conv_tensor(&geo, x, weight)?;
+            if let Some(b) = bias {
+                let mut shape = vec![1; N + 2];
+                shape[1] = geo.c_out;
+                y = y.broadcast_add(&b.reshape(shape)?)?;
+            }
+            activation.apply(&y)
         }
-    })
+    }
 }
 
 /// 1D convolution: `x` `[batch, in_channels, x]`, `weight` `[out_channels, in_channels / groups, kx]`.

@@ -24,10 +24,17 @@ pub enum PaddingMode {
 /// let p = Conv2dParams::default().padding(1).stride(2).circular();
 /// assert_eq!(p.padding, [1, 1]);
 /// assert_eq!(p.stride, [2, 2]);
-/// assert_eq!(p.padding_mode, PaddingMode::Circular);
+/// assert_eq!(p.padding_mode, [PaddingMode::Circular; 2]);
+///
+/// // Periodic along x only, zero-padded along y (a global lat-lon grid):
+/// let q = Conv2dParams { padding_mode: [PaddingMode::Zeros, PaddingMode::Circular], ..p };
+/// assert!(q.is_circular(1) && !q.is_circular(0));
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(bound(serialize = "[usize; N]: Serialize", deserialize = "[usize; N]: Deserialize<'de>"))]
+#[serde(bound(
+    serialize = "[usize; N]: Serialize, [PaddingMode; N]: Serialize",
+    deserialize = "[usize; N]: Deserialize<'de>, [PaddingMode; N]: Deserialize<'de>"
+))]
 pub struct ConvParams<const N: usize> {
     /// Step between output samples, per axis; at least 1. Default 1.
     pub stride: [usize; N],
@@ -38,8 +45,8 @@ pub struct ConvParams<const N: usize> {
     /// Number of channel groups; must divide the input and output channels. `groups == in_channels`
     /// is a depthwise convolution. Default 1.
     pub groups: usize,
-    /// What lies beyond the border. Default [`PaddingMode::Zeros`].
-    pub padding_mode: PaddingMode,
+    /// What lies beyond the border, per axis. Default [`PaddingMode::Zeros`].
+    pub padding_mode: [PaddingMode; N],
 }
 
 /// Parameters of [`conv1d`](super::conv1d).
@@ -51,7 +58,7 @@ pub type Conv3dParams = ConvParams<3>;
 
 impl<const N: usize> Default for ConvParams<N> {
     fn default() -> Self {
-        Self { stride: [1; N], padding: [0; N], dilation: [1; N], groups: 1, padding_mode: PaddingMode::Zeros }
+        Self { stride: [1; N], padding: [0; N], dilation: [1; N], groups: 1, padding_mode: [PaddingMode::Zeros; N] }
     }
 }
 
@@ -80,22 +87,33 @@ impl<const N: usize> ConvParams<N> {
         self
     }
 
-    /// Sets the padding mode.
+    /// Sets the padding mode of every axis.
     pub fn padding_mode(mut self, mode: PaddingMode) -> Self {
-        self.padding_mode = mode;
+        self.padding_mode = [mode; N];
         self
     }
 
-    /// Shortcut for `padding_mode(PaddingMode::Circular)`: periodic boundaries.
+    /// Shortcut for `padding_mode(PaddingMode::Circular)`: periodic boundaries on every axis.
     pub fn circular(self) -> Self {
         self.padding_mode(PaddingMode::Circular)
+    }
+
+    /// Whether `axis` (0 = the first spatial axis) is periodic.
+    pub fn is_circular(&self, axis: usize) -> bool {
+        self.padding_mode[axis] == PaddingMode::Circular
+    }
+
+    /// Whether every axis pads with zeros.
+    pub fn is_zero_padded(&self) -> bool {
+        self.padding_mode.iter().all(|m| *m == PaddingMode::Zeros)
     }
 
     /// The same parameters as a 3D convolution with singleton leading axes (stride 1,
     /// padding 0, dilation 1 there), which is how every convolution is computed.
     pub(crate) fn to_3d(self) -> ConvParams<3> {
-        let mut p = ConvParams::<3> { groups: self.groups, padding_mode: self.padding_mode, ..Default::default() };
+        let mut p = ConvParams::<3> { groups: self.groups, ..Default::default() };
         let off = 3 - N;
+        p.padding_mode[off..].copy_from_slice(&self.padding_mode);
         p.stride[off..].copy_from_slice(&self.stride);
         p.padding[off..].copy_from_slice(&self.padding);
         p.dilation[off..].copy_from_slice(&self.dilation);
@@ -114,7 +132,7 @@ mod tests {
         assert_eq!(p.padding, [0, 0, 3]);
         assert_eq!(p.dilation, [1, 1, 4]);
         assert_eq!(p.groups, 5);
-        assert_eq!(p.padding_mode, PaddingMode::Circular);
+        assert_eq!(p.padding_mode, [PaddingMode::Zeros, PaddingMode::Zeros, PaddingMode::Circular]);
     }
 
     #[test]

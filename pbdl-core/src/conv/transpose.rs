@@ -7,7 +7,7 @@
 
 use super::backward::grad_input_tensor;
 use super::geometry::Geometry;
-use super::params::{ConvParams, PaddingMode};
+use super::params::ConvParams;
 use crate::error::check_float;
 use crate::{Error, Result};
 use candle_core::Tensor;
@@ -48,7 +48,7 @@ pub fn conv_transpose<const N: usize>(
     output_padding: [usize; N],
 ) -> Result<Tensor> {
     const OP: &str = "conv_transpose";
-    if params.padding_mode != PaddingMode::Zeros {
+    if !params.is_zero_padded() {
         return Err(Error::invalid(OP, "params", "only zero padding is supported; use PaddingMode::Zeros"));
     }
     if x.rank() != N + 2 {

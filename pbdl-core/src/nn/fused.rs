@@ -83,6 +83,12 @@ pub fn with_composed<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
 
+/// Whether fused kernels may be used at all here (not inside [`with_composed`], not with
+/// `PBDL_NN_COMPOSED=1`).
+pub(crate) fn fused_allowed() -> bool {
+    !composed_forced()
+}
+
 /// Whether the fused kernels handle `x`: CPU, `f32` or `f64`, and not switched off.
 pub(crate) fn fusable(x: &Tensor) -> bool {
     x.device().is_cpu() && matches!(x.dtype(), DType::F32 | DType::F64) && !composed_forced()

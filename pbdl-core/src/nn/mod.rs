@@ -45,6 +45,7 @@ pub mod activation;
 pub mod batch_norm;
 mod batch_norm_fused;
 mod fused;
+pub(crate) use fused::fused_allowed;
 pub use fused::with_composed;
 mod layers;
 mod norm;

@@ -204,13 +204,7 @@ impl ConvLstmCell {
 
     /// The gate convolution restricted to some input channels (`weight` the matching slice).
     fn conv_part(&self, x: &Tensor, weight: &Tensor, bias: Option<&Tensor>) -> Result<Tensor> {
-        let pad = self.config.kernel_size / 2;
-        let x = if self.config.padding == Padding::PeriodicX && pad > 0 {
-            let w = x.dim(3)?;
-            Tensor::cat(&[&x.narrow(3, w - pad, pad)?, x, &x.narrow(3, 0, pad)?], 3)?
-        } else {
-            x.clone()
-        };
-        Ok(pbdl_core::conv::conv2d(&x, weight, bias, self.conv.conv().params())?)
+        // The layer's parameters carry the padding, periodic x included.
+        Ok(pbdl_core::conv::conv2d(x, weight, bias, self.conv.conv().params())?)
     }
 }

@@ -15,7 +15,8 @@ use crate::registry::{CrateTasks, Entry, TaskContext, TaskResult};
 use candle_core::{DType, Device, Module, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use pbdl_core::conv::{conv_transpose2d, Conv2d, Conv2dParams, ConvLayerConfig};
-use pbdl_core::nn::activation::{leaky_relu, relu};
+use pbdl_core::nn::activation::relu;
+use pbdl_core::nn::Activation;
 use pbdl_core::nn::{BatchNorm2d, BatchNormConfig};
 use pbdl_core::sample::{resize2d, Resize};
 use pbdl_core::seed;
@@ -65,7 +66,7 @@ impl WeatherUnit {
     }
 
     fn forward(&self, x: &Tensor) -> TaskResult<Tensor> {
-        let h = leaky_relu(&self.conv.forward(x)?, 0.3)?;
+        let h = self.conv.forward_act(x, Activation::LeakyRelu { negative_slope: 0.3 })?;
         Ok(self.norm.forward(&h, true)?)
     }
 }
@@ -130,9 +131,9 @@ impl TecoGenerator {
 
     fn forward(&self, x: &Tensor) -> TaskResult<Tensor> {
         let lr = x.narrow(1, 0, 3)?;
-        let mut h = relu(&self.input.forward(x)?)?;
+        let mut h = self.input.forward_act(x, Activation::Relu)?;
         for (a, b) in &self.blocks {
-            h = (&h + b.forward(&relu(&a.forward(&h)?)?)?)?;
+            h = (&h + b.forward(&a.forward_act(&h, Activation::Relu)?)?)?;
         }
         let stride2 = Conv2dParams::default().stride(2).padding(1);
         for (w, b) in &self.up {
@@ -148,38 +149,49 @@ fn mse(a: &Tensor, b: &Tensor) -> candle_core::Result<Tensor> {
     (a - b)?.sqr()?.mean_all()
 }
 
+/// Whether the case runs: all of them, or those named in `PBDL_NETS_CASES` (comma-separated,
+/// like the peer script's `--only`), for profiling one network at a time.
+fn selected(case: &str) -> bool {
+    std::env::var("PBDL_NETS_CASES").map_or(true, |list| list.split(',').any(|c| c.trim() == case))
+}
+
 fn bench_training_steps(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     let dev = Device::Cpu;
     let reps = if ctx.quick { 2 } else { 5 };
     let mut rows = Vec::new();
 
     // WeatherBench ResNet: one Adam step.
-    let varmap = VarMap::new();
-    let net = WeatherResNet::new(VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
-    let trainable = pbdl_core::nn::batch_norm::trainable_vars(&varmap);
-    let mut opt = OptimizerConfig::Adam(AdamConfig { lr: 1e-4, ..Default::default() }).build(trainable)?;
-    let x = seed::randn((4, 117, 32, 64), 0.0, 1.0, DType::F32, &dev, 1)?;
-    let y = seed::randn((4, 3, 32, 64), 0.0, 1.0, DType::F32, &dev, 2)?;
-    let s = median_seconds(1, reps, || -> TaskResult<()> {
-        let loss = mse(&net.forward(&x)?, &y)?;
-        candle_nn::Optimizer::backward_step(&mut opt, &loss)?;
-        Ok(())
-    });
-    rows.push(row("weather_resnet_train_step", "b4_c117_w128_blocks19_32x64", s, ctx.threads));
+    if selected("weather_resnet_train_step") {
+        let varmap = VarMap::new();
+        let net = WeatherResNet::new(VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
+        let trainable = pbdl_core::nn::batch_norm::trainable_vars(&varmap);
+        let mut opt = OptimizerConfig::Adam(AdamConfig { lr: 1e-4, ..Default::default() }).build(trainable)?;
+        let x = seed::randn((4, 117, 32, 64), 0.0, 1.0, DType::F32, &dev, 1)?;
+        let y = seed::randn((4, 3, 32, 64), 0.0, 1.0, DType::F32, &dev, 2)?;
+        let s = median_seconds(1, reps, || -> TaskResult<()> {
+            let loss = mse(&net.forward(&x)?, &y)?;
+            candle_nn::Optimizer::backward_step(&mut opt, &loss)?;
+            Ok(())
+        });
+        rows.push(row("weather_resnet_train_step", "b4_c117_w128_blocks19_32x64", s, ctx.threads));
+    }
 
     // TecoGAN generator: forward + backward.
-    let varmap = VarMap::new();
-    let gen = TecoGenerator::new(VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
-    let x = seed::randn((4, 51, 32, 32), 0.0, 1.0, DType::F32, &dev, 3)?;
-    let y = seed::randn((4, 3, 128, 128), 0.0, 1.0, DType::F32, &dev, 4)?;
-    let s = median_seconds(1, reps, || -> TaskResult<()> {
-        mse(&gen.forward(&x)?, &y)?.backward()?;
-        Ok(())
-    });
-    rows.push(row("tecogan_generator_fwd_bwd", "b4_c51_w64_blocks16_32to128", s, ctx.threads));
+    if selected("tecogan_generator_fwd_bwd") {
+        let varmap = VarMap::new();
+        let gen = TecoGenerator::new(VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
+        let x = seed::randn((4, 51, 32, 32), 0.0, 1.0, DType::F32, &dev, 3)?;
+        let y = seed::randn((4, 3, 128, 128), 0.0, 1.0, DType::F32, &dev, 4)?;
+        let s = median_seconds(1, reps, || -> TaskResult<()> {
+            mse(&gen.forward(&x)?, &y)?.backward()?;
+            Ok(())
+        });
+        rows.push(row("tecogan_generator_fwd_bwd", "b4_c51_w64_blocks16_32to128", s, ctx.threads));
+    }
 
     // LSTM over 6 latent vectors: forward + backward.
-    for size in [256, 1024] {
+    let lstm_sizes = if selected("lstm_fwd_bwd") { vec![256, 1024] } else { vec![] };
+    for size in lstm_sizes {
         let varmap = VarMap::new();
         let lstm = Lstm::new(LstmConfig::new(size, size), VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
         let x = seed::randn((16, 6, size), 0.0, 1.0, DType::F32, &dev, 5)?;

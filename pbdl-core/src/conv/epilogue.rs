@@ -1,0 +1,249 @@
+//! Convolution + bias + activation as one op: the bias and a ReLU or LeakyReLU are applied to
+//! each output tile right after its matrix product, while it is still in cache.
+//!
+//! Unfused, a conv layer with bias and activation is three nodes of candle's graph (conv,
+//! broadcast add, activation), each with its own output buffer, its own backward pass and, in
+//! candle's backward, its own zero-filled gradient accumulator; the bias gradient is a strided
+//! reduction over batch and space. Fused it is one node: the backward turns the output
+//! gradient into the pre-activation gradient with one pass over the *output* (the activation's
+//! derivative is read off `y`, so no pre-activation buffer is kept), sums it per channel for
+//! the bias, and hands it to the two convolution adjoints.
+//!
+//! The derivative at a pre-activation of exactly 0: LeakyReLU (slope > 0, so `y = 0` only
+//! there) uses the mean of both slopes, like [`crate::nn::activation::leaky_relu`]; ReLU cannot
+//! tell 0 from a negative value from `y` and uses 0 (PyTorch's rule; pbdl's unfused
+//! [`crate::nn::activation::relu`] uses candle's 1).
+
+use super::backward::{grad_input_tensor, grad_weight_tensor};
+use super::forward::conv_forward_epilogue;
+use super::geometry::{expect_shape, Geometry};
+use crate::nn::Activation;
+use crate::op::{apply1, apply2, apply3, grad_if_tracked, zeros_like, Kernel1, Kernel2, Kernel3, Op1, Op2, Op3};
+use crate::Real;
+use candle_core::{Shape, Tensor};
+use rayon::prelude::*;
+
+/// What a fused convolution applies after adding the bias.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Epilogue {
+    /// Bias only.
+    Identity,
+    /// `max(v, 0)`.
+    Relu,
+    /// `v` for `v > 0`, `slope v` otherwise; `slope > 0`.
+    LeakyRelu(f64),
+}
+
+impl Epilogue {
+    /// The epilogue computing `act`, or `None` when `act` cannot be fused (its derivative is
+    /// not a function of its output).
+    pub(crate) fn of(act: Activation) -> Option<Self> {
+        match act {
+            Activation::Identity => Some(Self::Identity),
+            Activation::Relu => Some(Self::Relu),
+            Activation::LeakyRelu { negative_slope } if negative_slope > 0.0 => Some(Self::LeakyRelu(negative_slope)),
+            _ => None,
+        }
+    }
+
+    /// Adds `bias` to every element of `row` and applies the activation, in place; the same
+    /// operations in the same order as the unfused broadcast add and activation.
+    #[inline(always)]
+    pub(crate) fn apply<T: Real>(self, row: &mut [T], bias: T) {
+        match self {
+            Self::Identity => row.iter_mut().for_each(|v| *v += bias),
+            Self::Relu => row.iter_mut().for_each(|v| {
+                let u = *v + bias;
+                *v = if u > T::zero() { u } else { T::zero() };
+            }),
+            Self::LeakyRelu(slope) => {
+                let s = T::c(slope);
+                row.iter_mut().for_each(|v| {
+                    let u = *v + bias;
+                    *v = if u > T::zero() { u } else { u * s };
+                });
+            }
+        }
+    }
+
+    /// `gy` times the activation's derivative, read off the output `y`.
+    #[inline(always)]
+    fn grad<T: Real>(self, y: T, gy: T) -> T {
+        match self {
+            Self::Identity => gy,
+            Self::Relu => {
+                if y > T::zero() {
+                    gy
+                } else {
+                    T::zero()
+                }
+            }
+            Self::LeakyRelu(slope) => {
+                let s = T::c(slope);
+                if y > T::zero() {
+                    gy
+                } else if y < T::zero() {
+                    gy * s
+                } else {
+                    let half = T::c(0.5);
+                    gy * half + gy * s * half
+                }
+            }
+        }
+    }
+}
+
+/// The op `y = act(conv(x, w) + b)`.
+struct ConvBiasAct {
+    geo: Geometry,
+    epilogue: Epilogue,
+}
+
+impl Kernel3 for ConvBiasAct {
+    fn name(&self) -> &'static str {
+        "conv_bias_act"
+    }
+
+    fn output_shape(&self, x: &Shape, w: &Shape, b: &Shape) -> candle_core::Result<Shape> {
+        expect_shape("conv_bias_act", "input", x.dims(), &self.geo.x_shape())?;
+        expect_shape("conv_bias_act", "weight", w.dims(), &self.geo.w_shape())?;
+        expect_shape("conv_bias_act", "bias", b.dims(), &[self.geo.c_out])?;
+        Ok(Shape::from(self.geo.y_shape()))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn forward<T: Real>(
+        &self,
+        x: &[T],
+        _: &Shape,
+        w: &[T],
+        _: &Shape,
+        b: &[T],
+        _: &Shape,
+        y: &mut [T],
+    ) -> candle_core::Result<()> {
+        conv_forward_epilogue(&self.geo, x, w, Some((b, self.epilogue)), y);
+        Ok(())
+    }
+}
+
+impl Op3 for ConvBiasAct {
+    fn backward(
+        &self,
+        x: &Tensor,
+        w: &Tensor,
+        b: &Tensor,
+        y: &Tensor,
+        gy: &Tensor,
+    ) -> candle_core::Result<(Tensor, Tensor, Tensor)> {
+        let g_pre = match self.epilogue {
+            Epilogue::Identity => gy.clone(),
+            e => apply2(y, gy, ActGrad(e))?,
+        };
+        let gx = grad_if_tracked(x, || grad_input_tensor(&self.geo, &g_pre, w))?;
+        let gw = grad_if_tracked(w, || grad_weight_tensor(&self.geo, x, &g_pre))?;
+        let gb = grad_if_tracked(b, || apply1(&g_pre, ChannelSum))?;
+        Ok((gx, gw, gb))
+    }
+}
+
+/// `gy * act'(y)` elementwise. Linear in `gy`, piecewise constant in `y`, so differentiable
+/// again: `d/dgy` is the same op, `d/dy` is zero.
+struct ActGrad(Epilogue);
+
+impl Kernel2 for ActGrad {
+    fn name(&self) -> &'static str {
+        "conv_activation_grad"
+    }
+
+    fn output_shape(&self, y: &Shape, gy: &Shape) -> candle_core::Result<Shape> {
+        expect_shape("conv_activation_grad", "grad_output", gy.dims(), y.dims())?;
+        Ok(y.clone())
+    }
+
+    fn forward<T: Real>(&self, y: &[T], _: &Shape, gy: &[T], _: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+        let e = self.0;
+        let run = |((o, y), gy): ((&mut [T], &[T]), &[T])| {
+            for ((o, &y), &gy) in o.iter_mut().zip(y).zip(gy) {
+                *o = e.grad(y, gy);
+            }
+        };
+        const CHUNK: usize = 1 << 15;
+        if crate::threads::parallel(out.len()) {
+            out.par_chunks_mut(CHUNK).zip(y.par_chunks(CHUNK)).zip(gy.par_chunks(CHUNK)).for_each(run);
+        } else {
+            run(((out, y), gy));
+        }
+        Ok(())
+    }
+}
+
+impl Op2 for ActGrad {
+    fn backward(&self, y: &Tensor, _gy: &Tensor, _out: &Tensor, gg: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
+        Ok((zeros_like(y)?, apply2(y, gg, ActGrad(self.0))?))
+    }
+}
+
+/// Per-channel sums of `[batch, channel, spatial...]`: the bias gradient. Each channel is
+/// summed by one thread in a fixed order, so the result does not depend on scheduling.
+struct ChannelSum;
+
+impl Kernel1 for ChannelSum {
+    fn name(&self) -> &'static str {
+        "conv_bias_grad"
+    }
+
+    fn output_shape(&self, g: &Shape) -> candle_core::Result<Shape> {
+        if g.rank() < 2 {
+            candle_core::bail!("conv_bias_grad: expected [batch, channel, ...], got {:?}", g.dims());
+        }
+        Ok(Shape::from(g.dims()[1]))
+    }
+
+    fn forward<T: Real>(&self, g: &[T], shape: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+        let dims = shape.dims();
+        let (batch, channels) = (dims[0], dims[1]);
+        let spatial: usize = dims[2..].iter().product();
+        let sum = |(c, o): (usize, &mut T)| {
+            let mut acc = T::zero();
+            for b in 0..batch {
+                acc += g[(b * channels + c) * spatial..][..spatial].iter().copied().sum::<T>();
+            }
+            *o = acc;
+        };
+        if crate::threads::parallel(g.len()) {
+            out.par_iter_mut().enumerate().for_each(sum);
+        } else {
+            out.iter_mut().enumerate().for_each(sum);
+        }
+        Ok(())
+    }
+}
+
+impl Op1 for ChannelSum {
+    fn backward(&self, g: &Tensor, _out: &Tensor, gg: &Tensor) -> candle_core::Result<Tensor> {
+        let mut shape = vec![1; g.rank()];
+        shape[1] = g.dim(1)?;
+        gg.reshape(shape)?.broadcast_as(g.shape())?.contiguous()
+    }
+}
+
+/// `act(conv(x, w) + b)` as one op on tensors of geometry `geo` (CPU, `f32`/`f64`, checked by
+/// the caller). `bias` `None` adds nothing (a constant zero bias, which gets no gradient).
+pub(crate) fn conv_bias_act_tensor(
+    geo: &Geometry,
+    x: &Tensor,
+    w: &Tensor,
+    bias: Option<&Tensor>,
+    epilogue: Epilogue,
+) -> candle_core::Result<Tensor> {
+    let zeros;
+    let b = match bias {
+        Some(b) => b,
+        None => {
+            zeros = Tensor::zeros(geo.c_out, x.dtype(), x.device())?;
+            &zeros
+        }
+    };
+    apply3(x, w, b, ConvBiasAct { geo: *geo, epilogue })
+}
