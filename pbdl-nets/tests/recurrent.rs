@@ -173,6 +173,46 @@ fn lstm_f32_agrees_with_f64() {
     assert!(d < F32_AGREEMENT);
 }
 
+/// The fused sequence op (hand-written backward through time) equals the composed candle ops
+/// in f32: hidden states, last cell state and the gradients of every variable and of (h0, c0),
+/// for a loss that reads the outputs and the last cell state.
+#[test]
+fn fused_sequence_equals_composed_ops_in_f32() {
+    let (b, t, i, h) = (4, 6, 5, 16);
+    let vars: HashMap<String, candle_core::Var> = lstm_vars(i, h, DType::F32, 80)
+        .into_iter()
+        .map(|(k, v)| (k, candle_core::Var::from_tensor(&v).unwrap()))
+        .collect();
+    let x = randn(&[b, t, i], DType::F32, 81);
+    let h0 = candle_core::Var::from_tensor(&randn(&[b, h], DType::F32, 82)).unwrap();
+    let c0 = candle_core::Var::from_tensor(&randn(&[b, h], DType::F32, 83)).unwrap();
+    let proj = randn(&[b, t, h], DType::F32, 84);
+    let run = || {
+        let map: HashMap<String, Tensor> = vars.iter().map(|(k, v)| (k.clone(), v.as_tensor().clone())).collect();
+        let lstm = Lstm::new(LstmConfig::new(i, h), VarBuilder::from_tensors(map, DType::F32, &CPU)).unwrap();
+        let init = [LstmState::new(h0.as_tensor().clone(), c0.as_tensor().clone())];
+        let out = lstm.forward(&x, Some(&init)).unwrap();
+        let (hs, last) = (out.output, out.states[0].clone());
+        let loss = (hs.mul(&proj).unwrap().sum_all().unwrap() + last.c.sqr().unwrap().sum_all().unwrap()).unwrap();
+        let grads = loss.backward().unwrap();
+        let mut gs: Vec<(String, Tensor)> =
+            vars.iter().map(|(k, v)| (k.clone(), grads.get(v.as_tensor()).unwrap().clone())).collect();
+        gs.sort_by(|a, b| a.0.cmp(&b.0));
+        gs.push(("h0".into(), grads.get(h0.as_tensor()).unwrap().clone()));
+        gs.push(("c0".into(), grads.get(c0.as_tensor()).unwrap().clone()));
+        (hs, last.c, gs)
+    };
+    let (hs_f, c_f, g_f) = run();
+    let (hs_c, c_c, g_c) = pbdl_core::nn::with_composed(run);
+    assert!(max_rel_diff(&hs_f, &hs_c) < F32_AGREEMENT, "hidden states");
+    assert!(max_rel_diff(&c_f, &c_c) < F32_AGREEMENT, "last cell state");
+    for ((name, a), (_, b)) in g_f.iter().zip(&g_c) {
+        let d = max_rel_diff(a, b);
+        println!("gradient of {name}: fused vs composed {d:.1e}");
+        assert!(d < F32_AGREEMENT, "gradient of {name}: {d:.1e}");
+    }
+}
+
 /// Seeded ConvLSTM variables `weight` `[4 hc, ci + hc, k, k]` and `bias` (PyTorch conv scale).
 fn conv_lstm(cfg: ConvLstmConfig, dtype: DType, seed: u64) -> (HashMap<String, Tensor>, ConvLstmCell) {
     let varmap = VarMap::new();

@@ -185,7 +185,7 @@ fn conv_with<const N: usize>(
         let y = depthwise::conv_bias_tensor(&geo, x, weight, b)?;
         return activation.apply(&y);
     }
-    let fused = if crate::nn::fused_allowed() { Epilogue::of(activation) } else { None };
+    let fused = if crate::nn::fusion_enabled() { Epilogue::of(activation) } else { None };
     match (fused, bias) {
         (Some(Epilogue::Identity), None) => Ok(forward::conv_tensor(&geo, x, weight)?),
         (Some(e), _) => Ok(epilogue::conv_bias_act_tensor(&geo, x, weight, bias, e)?),

@@ -84,8 +84,8 @@ pub fn with_composed<R>(f: impl FnOnce() -> R) -> R {
 }
 
 /// Whether fused kernels may be used at all here (not inside [`with_composed`], not with
-/// `PBDL_NN_COMPOSED=1`).
-pub(crate) fn fused_allowed() -> bool {
+/// `PBDL_NN_COMPOSED=1`); crates with fused kernels of their own ask this too.
+pub fn fusion_enabled() -> bool {
     !composed_forced()
 }
 

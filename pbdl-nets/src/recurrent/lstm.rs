@@ -3,7 +3,7 @@
 
 use super::{lstm_update, LstmState};
 use crate::{Error, Result};
-use candle_core::Tensor;
+use candle_core::{DType, Tensor};
 use candle_nn::{Init, VarBuilder};
 use serde::{Deserialize, Serialize};
 
@@ -238,6 +238,15 @@ impl LstmCell {
             xp = xp.broadcast_add(&bias)?;
         }
         let xp = xp.reshape((b, t, g))?;
+        if pbdl_core::nn::fusion_enabled() && x.device().is_cpu() && matches!(x.dtype(), DType::F32 | DType::F64) {
+            // The whole recurrence as one op with a hand-written backward through time.
+            let h = self.hidden_size;
+            let s0 = Tensor::cat(&[&state.h, &state.c], 1)?;
+            let hc = super::fused::lstm_sequence(&xp, &self.weight_hh, &s0)?;
+            let last = hc.narrow(1, t - 1, 1)?.squeeze(1)?;
+            let state = LstmState::new(last.narrow(1, 0, h)?, last.narrow(1, h, h)?);
+            return Ok((hc.narrow(2, 0, h)?, state));
+        }
         let w_hh_t = self.weight_hh.t()?;
         let mut hs = Vec::with_capacity(t);
         for step in 0..t {

@@ -40,6 +40,7 @@
 //! ```
 
 mod conv_lstm;
+mod fused;
 mod lstm;
 
 pub use conv_lstm::{ConvLstmCell, ConvLstmConfig};

@@ -196,7 +196,8 @@ fn bench_training_steps(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         let lstm = Lstm::new(LstmConfig::new(size, size), VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
         let x = seed::randn((16, 6, size), 0.0, 1.0, DType::F32, &dev, 5)?;
         let y = seed::randn((16, 6, size), 0.0, 1.0, DType::F32, &dev, 6)?;
-        let s = median_seconds(1, reps, || -> TaskResult<()> {
+        // Milliseconds a step: more repetitions against scheduling noise.
+        let s = median_seconds(2, 10 * reps, || -> TaskResult<()> {
             mse(&lstm.forward(&x, None)?.output, &y)?.backward()?;
             Ok(())
         });
