@@ -5,7 +5,9 @@
 mod common;
 
 use candle_core::{DType, Tensor, Var};
-use pbdl_core::conv::{conv2d, conv_act, uses_direct_kernel, Conv2dParams, PaddingMode};
+use pbdl_core::conv::{
+    conv2d, conv_act, conv_transpose2d, conv_transpose_act, uses_direct_kernel, Conv2dParams, PaddingMode,
+};
 use pbdl_core::nn::Activation;
 use pbdl_core::{check_grad, GradCheckOptions};
 
@@ -121,4 +123,40 @@ fn second_derivatives_through_the_fused_activation() {
     assert!(rep.max_rel_error <= GRAD_TOL, "d grad_x / d w: {rep:?}");
     let rep = check_grad(|t| grads_of(&t[0], &w0, false), std::slice::from_ref(&x0), &opts).unwrap();
     assert!(rep.max_rel_error <= GRAD_TOL, "d grad_w / d x: {rep:?}");
+}
+
+#[test]
+fn fused_transposed_conv_equals_unfused_and_passes_gradient_check() {
+    let p = Conv2dParams::default().stride(2).padding(1);
+    for act in ACTS {
+        // f32: values bit for bit, gradients to round-off.
+        let x = Var::from_tensor(&randn(&[2, 4, 5, 6], DType::F32, 1000)).unwrap();
+        let w = Var::from_tensor(&randn(&[4, 3, 3, 3], DType::F32, 1001)).unwrap();
+        let b = Var::from_tensor(&randn(&[3], DType::F32, 1002)).unwrap();
+        let fused = conv_transpose_act(&x, &w, Some(&b), &p, [1, 1], act).unwrap();
+        let y = conv_transpose2d(&x, &w, None, &p, [1, 1]).unwrap();
+        let reference = act.apply(&y.broadcast_add(&b.reshape((1, 3, 1, 1)).unwrap()).unwrap()).unwrap();
+        let (f, r) = (fused.flatten_all().unwrap(), reference.flatten_all().unwrap());
+        assert_eq!(f.to_vec1::<f32>().unwrap(), r.to_vec1::<f32>().unwrap(), "{act:?}: values");
+        let proj = randn(fused.dims(), DType::F32, 1003);
+        let gf = fused.mul(&proj).unwrap().sum_all().unwrap().backward().unwrap();
+        let gr = reference.mul(&proj).unwrap().sum_all().unwrap().backward().unwrap();
+        for (name, v) in [("x", &x), ("w", &w), ("b", &b)] {
+            let e = rel_diff(gf.get(v).unwrap(), gr.get(v).unwrap());
+            assert!(e < F32_TOL, "{act:?}: gradient of {name} differs by {e:.2e}");
+        }
+        // f64 finite differences.
+        let inputs = [
+            randn(&[2, 4, 5, 6], DType::F64, 1004),
+            randn(&[4, 3, 3, 3], DType::F64, 1005),
+            randn(&[3], DType::F64, 1006),
+        ];
+        let r = check_grad(
+            |t| Ok(conv_transpose_act(&t[0], &t[1], Some(&t[2]), &p, [1, 1], act)?),
+            &inputs,
+            &GradCheckOptions { max_probes: 30, ..Default::default() },
+        )
+        .unwrap();
+        assert!(r.max_rel_error <= GRAD_TOL, "{act:?}: {r:?}");
+    }
 }

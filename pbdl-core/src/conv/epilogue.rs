@@ -228,6 +228,55 @@ impl Op1 for ChannelSum {
     }
 }
 
+/// The op `y = act(z + b)` for `z` `[batch, channel, spatial...]` and `b` `[channel]`: the
+/// epilogue on its own, for outputs that are not made by [`ConvBiasAct`] (transposed
+/// convolutions).
+struct BiasAct(Epilogue);
+
+impl Kernel2 for BiasAct {
+    fn name(&self) -> &'static str {
+        "bias_act"
+    }
+
+    fn output_shape(&self, z: &Shape, b: &Shape) -> candle_core::Result<Shape> {
+        if z.rank() < 2 {
+            candle_core::bail!("bias_act: expected [batch, channel, ...], got {:?}", z.dims());
+        }
+        expect_shape("bias_act", "bias", b.dims(), &[z.dims()[1]])?;
+        Ok(z.clone())
+    }
+
+    fn forward<T: Real>(&self, z: &[T], shape: &Shape, b: &[T], _: &Shape, y: &mut [T]) -> candle_core::Result<()> {
+        let spatial: usize = shape.dims()[2..].iter().product();
+        let channels = b.len();
+        y.copy_from_slice(z);
+        let e = self.0;
+        let run = |(i, plane): (usize, &mut [T])| e.apply(plane, b[i % channels]);
+        if spatial > 0 && crate::threads::parallel(y.len()) {
+            y.par_chunks_mut(spatial).enumerate().for_each(run);
+        } else if spatial > 0 {
+            y.chunks_mut(spatial).enumerate().for_each(run);
+        }
+        Ok(())
+    }
+}
+
+impl Op2 for BiasAct {
+    fn backward(&self, _z: &Tensor, b: &Tensor, y: &Tensor, gy: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
+        let g_pre = match self.0 {
+            Epilogue::Identity => gy.clone(),
+            e => apply2(y, gy, ActGrad(e))?,
+        };
+        let gb = grad_if_tracked(b, || apply1(&g_pre, ChannelSum))?;
+        Ok((g_pre, gb))
+    }
+}
+
+/// `act(z + b)` per channel as one op (CPU, `f32`/`f64`, checked by the caller).
+pub(crate) fn bias_act_tensor(z: &Tensor, bias: &Tensor, epilogue: Epilogue) -> candle_core::Result<Tensor> {
+    apply2(z, bias, BiasAct(epilogue))
+}
+
 /// `act(conv(x, w) + b)` as one op on tensors of geometry `geo` (CPU, `f32`/`f64`, checked by
 /// the caller). `bias` `None` adds nothing (a constant zero bias, which gets no gradient).
 pub(crate) fn conv_bias_act_tensor(

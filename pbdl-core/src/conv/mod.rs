@@ -48,7 +48,7 @@ mod transpose;
 
 pub use layer::{Conv, Conv1d, Conv2d, Conv3d, ConvLayerConfig};
 pub use params::{Conv1dParams, Conv2dParams, Conv3dParams, ConvParams, PaddingMode};
-pub use transpose::{conv_transpose, conv_transpose2d};
+pub use transpose::{conv_transpose, conv_transpose2d, conv_transpose_act};
 
 use crate::error::check_float;
 use crate::nn::Activation;

@@ -6,9 +6,11 @@
 //! differentiable. Layouts follow PyTorch's `ConvTranspose{1,2,3}d`.
 
 use super::backward::grad_input_tensor;
+use super::epilogue::{bias_act_tensor, Epilogue};
 use super::geometry::Geometry;
 use super::params::ConvParams;
 use crate::error::check_float;
+use crate::nn::Activation;
 use crate::{Error, Result};
 use candle_core::Tensor;
 
@@ -46,6 +48,21 @@ pub fn conv_transpose<const N: usize>(
     bias: Option<&Tensor>,
     params: &ConvParams<N>,
     output_padding: [usize; N],
+) -> Result<Tensor> {
+    conv_transpose_act(x, weight, bias, params, output_padding, Activation::Identity)
+}
+
+/// `act(conv_transpose(x, weight, bias))`, with the bias and a ReLU or LeakyReLU (positive
+/// slope) applied by one op after the transposed convolution (one pass, one graph node, the
+/// bias gradient as a per-channel sum); other activations are applied separately. Shapes,
+/// errors and the gradient at 0 as [`conv_transpose`] and [`super::conv_act`].
+pub fn conv_transpose_act<const N: usize>(
+    x: &Tensor,
+    weight: &Tensor,
+    bias: Option<&Tensor>,
+    params: &ConvParams<N>,
+    output_padding: [usize; N],
+    act: Activation,
 ) -> Result<Tensor> {
     const OP: &str = "conv_transpose";
     if !params.is_zero_padded() {
@@ -120,7 +137,7 @@ pub fn conv_transpose<const N: usize>(
         return Err(Error::DType { op: OP, arg: "weight", expected: "the dtype of `input`", got: weight.dtype() });
     }
     let y = grad_input_tensor(&geo, x, weight)?;
-    let Some(b) = bias else { return Ok(y) };
+    let Some(b) = bias else { return act.apply(&y) };
     if b.dims() != [c_out] {
         return Err(Error::Shape {
             op: OP,
@@ -132,9 +149,14 @@ pub fn conv_transpose<const N: usize>(
     if b.dtype() != x.dtype() {
         return Err(Error::DType { op: OP, arg: "bias", expected: "the dtype of `input`", got: b.dtype() });
     }
-    let mut shape = vec![1; N + 2];
-    shape[1] = c_out;
-    Ok(y.broadcast_add(&b.reshape(shape)?)?)
+    match Epilogue::of(act).filter(|_| crate::nn::fusion_enabled()) {
+        Some(e) => Ok(bias_act_tensor(&y, b, e)?),
+        None => {
+            let mut shape = vec![1; N + 2];
+            shape[1] = c_out;
+            act.apply(&y.broadcast_add(&b.reshape(shape)?)?)
+        }
+    }
 }
 
 /// 2D transposed convolution: `x` `[batch, in, y, x]`, `weight` `[in, out / groups, ky, kx]`.

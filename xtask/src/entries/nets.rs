@@ -14,8 +14,7 @@ use crate::bench_schema::{median_seconds, BenchRow};
 use crate::registry::{CrateTasks, Entry, TaskContext, TaskResult};
 use candle_core::{DType, Device, Module, Tensor};
 use candle_nn::{VarBuilder, VarMap};
-use pbdl_core::conv::{conv_transpose2d, Conv2d, Conv2dParams, ConvLayerConfig};
-use pbdl_core::nn::activation::relu;
+use pbdl_core::conv::{conv_transpose_act, Conv2d, Conv2dParams, ConvLayerConfig};
 use pbdl_core::nn::Activation;
 use pbdl_core::nn::{BatchNorm2d, BatchNormConfig};
 use pbdl_core::sample::{resize2d, Resize};
@@ -137,7 +136,7 @@ impl TecoGenerator {
         }
         let stride2 = Conv2dParams::default().stride(2).padding(1);
         for (w, b) in &self.up {
-            h = relu(&conv_transpose2d(&h, w, Some(b), &stride2, [1, 1])?)?;
+            h = conv_transpose_act(&h, w, Some(b), &stride2, [1, 1], Activation::Relu)?;
         }
         let (_, _, hh, ww) = lr.dims4()?;
         let bicubic = resize2d(&lr, (4 * hh, 4 * ww), Resize::Bicubic { align_corners: false })?;
