@@ -4,7 +4,10 @@
 //!
 //! * `leaky_relu` (slope 0.3): `nn::activation::leaky_relu` (fused) vs `leaky_relu_composed`;
 //! * `batch_norm_train` (+ LeakyReLU epilogue): fused vs `batch_norm_train_composed`;
-//! * `rfft2`: `fft::rfft2` then `irfft2`, forward + backward.
+//! * `rfft2`: `fft::rfft2` then `irfft2`, forward + backward;
+//! * `conv3x3_bias_leaky_relu` (128 -> 128 channels, zero padding in y, periodic in x, as the
+//!   ResNet's units): `conv::conv_act` (one op) vs the same inside `nn::with_composed` (conv,
+//!   candle's broadcast add of the bias, fused LeakyReLU: three graph nodes).
 //!
 //! The backward uses a dense random output gradient (`sum(y * r)`). Run with
 //! `cargo bench -p pbdl-core --bench nn_layers`.
@@ -13,6 +16,7 @@
 
 use candle_core::{DType, Device, Tensor, Var};
 use criterion::{criterion_group, Criterion};
+use pbdl_core::conv::{conv_act, Conv2dParams, PaddingMode};
 use pbdl_core::nn::activation::{leaky_relu, leaky_relu_composed};
 use pbdl_core::nn::{batch_norm_train, batch_norm_train_composed, Activation};
 use std::hint::black_box;
@@ -56,6 +60,17 @@ fn bench(c: &mut Criterion) {
                 batch_norm_train_composed(t[0], Some(t[1]), Some(t[2]), 1e-5, act).unwrap().0
             })
         })
+    });
+    let wc = Var::from_tensor(&(randn((128, 128, 3, 3), 2) * 0.03).unwrap()).unwrap();
+    let bc = Var::zeros(128, DType::F32, &Device::Cpu).unwrap();
+    let p = Conv2dParams {
+        padding_mode: [PaddingMode::Zeros, PaddingMode::Circular],
+        ..Conv2dParams::default().padding(1)
+    };
+    let conv = |t: &[&Tensor]| conv_act(t[0], t[1], Some(t[2]), &p, act).unwrap();
+    g.bench_function("conv3x3_bias_leaky_relu/fused", |b| b.iter(|| fwd_bwd(&[&x, &wc, &bc], &r, &conv)));
+    g.bench_function("conv3x3_bias_leaky_relu/composed", |b| {
+        b.iter(|| pbdl_core::nn::with_composed(|| fwd_bwd(&[&x, &wc, &bc], &r, &conv)))
     });
     g.bench_function("rfft2_irfft2", |b| {
         b.iter(|| {
