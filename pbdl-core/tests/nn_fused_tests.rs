@@ -346,3 +346,45 @@ fn fused_relu_equals_candles() {
     let report = check_grad(relu, &[x], &GradCheckOptions::default()).unwrap();
     assert!(report.max_rel_error < pbdl_core::tolerance::GRAD_CHECK_F64, "{report:?}");
 }
+
+/// Group norm with a ReLU / LeakyReLU epilogue: the same values as the group norm followed by
+/// the fused activation op (bit for bit in f32), gradients to round-off, and a
+/// finite-difference check in f64, with and without the affine parameters.
+#[test]
+fn fused_group_norm_activation_equals_separate_ops_and_passes_fd() {
+    use nn::Activation;
+    let acts = [Activation::Relu, Activation::LeakyRelu { negative_slope: 0.2 }];
+    for act in acts {
+        for affine in [false, true] {
+            let x = randn(&[3, 6, 5, 7], 0.3, 1.5, DType::F32, 40);
+            let w = randn(&[6], 1.0, 0.3, DType::F32, 41);
+            let b = randn(&[6], 0.0, 0.3, DType::F32, 42);
+            let f = |fused: bool| {
+                move |t: &[Tensor]| {
+                    let (w, b) = if affine { (Some(&t[1]), Some(&t[2])) } else { (None, None) };
+                    if fused {
+                        nn::group_norm_act(&t[0], 2, w, b, 1e-5, act).unwrap()
+                    } else {
+                        act.apply(&nn::group_norm(&t[0], 2, w, b, 1e-5).unwrap()).unwrap()
+                    }
+                }
+            };
+            let used = if affine { 3 } else { 1 };
+            let inputs = [x, w, b];
+            let (yf, gf) = value_and_grads(&f(true), &inputs[..used], 43);
+            let (yu, gu) = value_and_grads(&f(false), &inputs[..used], 43);
+            assert_eq!(vec(&yf), vec(&yu), "{act:?} affine {affine}: values");
+            for (i, (a, b)) in gf.iter().zip(&gu).enumerate() {
+                let e = rel_diff(a, b);
+                assert!(e < 1e-5, "{act:?} affine {affine}: gradient {i} differs by {e:.2e}");
+            }
+            let inputs64: Vec<Tensor> = inputs[..used].iter().map(|t| t.to_dtype(DType::F64).unwrap()).collect();
+            let g = move |t: &[Tensor]| {
+                let (w, b) = if affine { (Some(&t[1]), Some(&t[2])) } else { (None, None) };
+                Ok(nn::group_norm_act(&t[0], 2, w, b, 1e-5, act)?)
+            };
+            let r = check_grad(g, &inputs64, &GradCheckOptions { max_probes: 30, ..Default::default() }).unwrap();
+            assert!(r.max_rel_error < 1e-6, "{act:?} affine {affine}: {r:?}");
+        }
+    }
+}

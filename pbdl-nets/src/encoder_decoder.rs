@@ -126,11 +126,10 @@ impl NormAct {
     }
 
     fn forward(&self, h: &Tensor) -> Result<Tensor> {
-        let h = match &self.norm {
-            Some(n) => n.apply(h)?,
-            None => h.clone(),
-        };
-        Ok(self.activation.apply(&h)?)
+        Ok(match &self.norm {
+            Some(n) => n.apply_act(h, self.activation)?,
+            None => self.activation.apply(h)?,
+        })
     }
 }
 

@@ -94,18 +94,20 @@ impl ConvUnit {
         })
     }
 
+    /// The norm (if any) and the activation; ReLU/LeakyReLU run inside the norm kernel.
     fn norm_act(&self, h: &Tensor) -> Result<Tensor> {
-        let h = match &self.norm {
-            Some(n) => n.apply(h)?,
-            None => h.clone(),
-        };
-        Ok(self.activation.apply(&h)?)
+        Ok(match &self.norm {
+            Some(n) => n.apply_act(h, self.activation)?,
+            None => self.activation.apply(h)?,
+        })
     }
 
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        match self.order {
-            BlockOrder::PostActivation => self.norm_act(&self.conv.forward(x)?),
-            BlockOrder::PreActivation => self.conv.forward(&self.norm_act(x)?),
+        match (self.order, &self.norm) {
+            // Without a norm the activation follows the conv directly: fuse it there.
+            (BlockOrder::PostActivation, None) => self.conv.forward_act(x, self.activation),
+            (BlockOrder::PostActivation, Some(_)) => self.norm_act(&self.conv.forward(x)?),
+            (BlockOrder::PreActivation, _) => self.conv.forward(&self.norm_act(x)?),
         }
     }
 }

@@ -9,89 +9,17 @@
 //! derivative is read off `y`, so no pre-activation buffer is kept), sums it per channel for
 //! the bias, and hands it to the two convolution adjoints.
 //!
-//! The derivative at a pre-activation of exactly 0: LeakyReLU (slope > 0, so `y = 0` only
-//! there) uses the mean of both slopes, like [`crate::nn::activation::leaky_relu`]; ReLU cannot
-//! tell 0 from a negative value from `y` and uses 0 (PyTorch's rule; pbdl's unfused
-//! [`crate::nn::activation::relu`] uses candle's 1).
+//! The derivative at a pre-activation of exactly 0 is described in `crate::nn::epilogue`.
 
 use super::backward::{grad_input_tensor, grad_weight_tensor};
 use super::forward::conv_forward_epilogue;
 use super::geometry::{expect_shape, Geometry};
-use crate::nn::Activation;
-use crate::op::{apply1, apply2, apply3, grad_if_tracked, zeros_like, Kernel1, Kernel2, Kernel3, Op1, Op2, Op3};
+use crate::nn::epilogue::act_grad;
+pub(crate) use crate::nn::epilogue::Epilogue;
+use crate::op::{apply1, apply2, apply3, grad_if_tracked, Kernel1, Kernel2, Kernel3, Op1, Op2, Op3};
 use crate::Real;
 use candle_core::{Shape, Tensor};
 use rayon::prelude::*;
-
-/// What a fused convolution applies after adding the bias.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) enum Epilogue {
-    /// Bias only.
-    Identity,
-    /// `max(v, 0)`.
-    Relu,
-    /// `v` for `v > 0`, `slope v` otherwise; `slope > 0`.
-    LeakyRelu(f64),
-}
-
-impl Epilogue {
-    /// The epilogue computing `act`, or `None` when `act` cannot be fused (its derivative is
-    /// not a function of its output).
-    pub(crate) fn of(act: Activation) -> Option<Self> {
-        match act {
-            Activation::Identity => Some(Self::Identity),
-            Activation::Relu => Some(Self::Relu),
-            Activation::LeakyRelu { negative_slope } if negative_slope > 0.0 => Some(Self::LeakyRelu(negative_slope)),
-            _ => None,
-        }
-    }
-
-    /// Adds `bias` to every element of `row` and applies the activation, in place; the same
-    /// operations in the same order as the unfused broadcast add and activation.
-    #[inline(always)]
-    pub(crate) fn apply<T: Real>(self, row: &mut [T], bias: T) {
-        match self {
-            Self::Identity => row.iter_mut().for_each(|v| *v += bias),
-            Self::Relu => row.iter_mut().for_each(|v| {
-                let u = *v + bias;
-                *v = if u > T::zero() { u } else { T::zero() };
-            }),
-            Self::LeakyRelu(slope) => {
-                let s = T::c(slope);
-                row.iter_mut().for_each(|v| {
-                    let u = *v + bias;
-                    *v = if u > T::zero() { u } else { u * s };
-                });
-            }
-        }
-    }
-
-    /// `gy` times the activation's derivative, read off the output `y`.
-    #[inline(always)]
-    fn grad<T: Real>(self, y: T, gy: T) -> T {
-        match self {
-            Self::Identity => gy,
-            Self::Relu => {
-                if y > T::zero() {
-                    gy
-                } else {
-                    T::zero()
-                }
-            }
-            Self::LeakyRelu(slope) => {
-                let s = T::c(slope);
-                if y > T::zero() {
-                    gy
-                } else if y < T::zero() {
-                    gy * s
-                } else {
-                    let half = T::c(0.5);
-                    gy * half + gy * s * half
-                }
-            }
-        }
-    }
-}
 
 /// The op `y = act(conv(x, w) + b)`.
 struct ConvBiasAct {
@@ -138,49 +66,12 @@ impl Op3 for ConvBiasAct {
     ) -> candle_core::Result<(Tensor, Tensor, Tensor)> {
         let g_pre = match self.epilogue {
             Epilogue::Identity => gy.clone(),
-            e => apply2(y, gy, ActGrad(e))?,
+            e => act_grad(y, gy, e)?,
         };
         let gx = grad_if_tracked(x, || grad_input_tensor(&self.geo, &g_pre, w))?;
         let gw = grad_if_tracked(w, || grad_weight_tensor(&self.geo, x, &g_pre))?;
         let gb = grad_if_tracked(b, || apply1(&g_pre, ChannelSum))?;
         Ok((gx, gw, gb))
-    }
-}
-
-/// `gy * act'(y)` elementwise. Linear in `gy`, piecewise constant in `y`, so differentiable
-/// again: `d/dgy` is the same op, `d/dy` is zero.
-struct ActGrad(Epilogue);
-
-impl Kernel2 for ActGrad {
-    fn name(&self) -> &'static str {
-        "conv_activation_grad"
-    }
-
-    fn output_shape(&self, y: &Shape, gy: &Shape) -> candle_core::Result<Shape> {
-        expect_shape("conv_activation_grad", "grad_output", gy.dims(), y.dims())?;
-        Ok(y.clone())
-    }
-
-    fn forward<T: Real>(&self, y: &[T], _: &Shape, gy: &[T], _: &Shape, out: &mut [T]) -> candle_core::Result<()> {
-        let e = self.0;
-        let run = |((o, y), gy): ((&mut [T], &[T]), &[T])| {
-            for ((o, &y), &gy) in o.iter_mut().zip(y).zip(gy) {
-                *o = e.grad(y, gy);
-            }
-        };
-        const CHUNK: usize = 1 << 15;
-        if crate::threads::parallel(out.len()) {
-            out.par_chunks_mut(CHUNK).zip(y.par_chunks(CHUNK)).zip(gy.par_chunks(CHUNK)).for_each(run);
-        } else {
-            run(((out, y), gy));
-        }
-        Ok(())
-    }
-}
-
-impl Op2 for ActGrad {
-    fn backward(&self, y: &Tensor, _gy: &Tensor, _out: &Tensor, gg: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
-        Ok((zeros_like(y)?, apply2(y, gg, ActGrad(self.0))?))
     }
 }
 
@@ -265,7 +156,7 @@ impl Op2 for BiasAct {
     fn backward(&self, _z: &Tensor, b: &Tensor, y: &Tensor, gy: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
         let g_pre = match self.0 {
             Epilogue::Identity => gy.clone(),
-            e => apply2(y, gy, ActGrad(e))?,
+            e => act_grad(y, gy, e)?,
         };
         let gb = grad_if_tracked(b, || apply1(&g_pre, ChannelSum))?;
         Ok((g_pre, gb))

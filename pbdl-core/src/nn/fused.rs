@@ -23,6 +23,7 @@
 //! Setting the environment variable `PBDL_NN_COMPOSED=1` (read once per process) routes both
 //! functions to the composed versions; it exists for A/B timings of whole networks.
 
+use super::epilogue::{act_grad, Epilogue};
 use crate::op::{apply1, apply3, apply_kernel2, dense, Kernel1, Kernel2, Kernel3, Op1, Op3};
 use crate::Real;
 use candle_core::cpu::erf::{erf_f32, erf_f64};
@@ -345,6 +346,8 @@ pub(crate) fn relu(x: &Tensor) -> candle_core::Result<Tensor> {
 struct GroupNormOp {
     groups: usize,
     eps: f64,
+    /// Activation applied to the normalised output (its derivative is read off the output).
+    epilogue: Epilogue,
     stats: OnceLock<Vec<[f64; 2]>>,
 }
 
@@ -367,8 +370,16 @@ struct Dims {
 }
 
 impl GroupNormOp {
-    fn new(groups: usize, eps: f64) -> Self {
-        Self { groups, eps, stats: OnceLock::new() }
+    fn new(groups: usize, eps: f64, epilogue: Epilogue) -> Self {
+        Self { groups, eps, epilogue, stats: OnceLock::new() }
+    }
+
+    /// The gradient with respect to the normalised (pre-activation) output.
+    fn pre_activation_grad(&self, y: &Tensor, grad_y: &Tensor) -> candle_core::Result<Tensor> {
+        match self.epilogue {
+            Epilogue::Identity => Ok(grad_y.clone()),
+            e => act_grad(y, grad_y, e),
+        }
     }
 
     fn dims(&self, x: &Shape) -> candle_core::Result<Dims> {
@@ -421,9 +432,10 @@ impl GroupNormOp {
                     let (w, b) = params.map_or((1.0, 0.0), |(w, b)| (w[ch].wide(), b[ch].wide()));
                     let (scale, shift) = (T::c(rstd * w), T::c(b));
                     let range = ci * d.spatial..(ci + 1) * d.spatial;
-                    for (y, &x) in y[range.clone()].iter_mut().zip(&xs[range]) {
+                    for (y, &x) in y[range.clone()].iter_mut().zip(&xs[range.clone()]) {
                         *y = (x - m) * scale + shift;
                     }
+                    self.epilogue.activate(&mut y[range]);
                 }
             };
             if d.tasks >= 2 && parallel(y.len(), PAR_NORM) {
@@ -617,8 +629,8 @@ impl Kernel1 for GroupNormPlain {
 }
 
 impl Op1 for GroupNormPlain {
-    fn backward(&self, x: &Tensor, _y: &Tensor, grad_y: &Tensor) -> candle_core::Result<Tensor> {
-        Ok(self.0.backward_any(x, None, grad_y)?.0)
+    fn backward(&self, x: &Tensor, y: &Tensor, grad_y: &Tensor) -> candle_core::Result<Tensor> {
+        Ok(self.0.backward_any(x, None, &self.0.pre_activation_grad(y, grad_y)?)?.0)
     }
 }
 
@@ -657,25 +669,26 @@ impl Op3 for GroupNormAffine {
         x: &Tensor,
         w: &Tensor,
         _b: &Tensor,
-        _y: &Tensor,
+        y: &Tensor,
         grad_y: &Tensor,
     ) -> candle_core::Result<(Tensor, Tensor, Tensor)> {
-        let (gx, params) = self.0.backward_any(x, Some(w), grad_y)?;
+        let (gx, params) = self.0.backward_any(x, Some(w), &self.0.pre_activation_grad(y, grad_y)?)?;
         let [gw, gb] = params.expect("the affine backward returns parameter gradients");
         Ok((gx, gw, gb))
     }
 }
 
-/// Fused group norm (caller checked [`fusable`] and the arguments). A missing weight is ones,
-/// a missing bias zeros, when the other one is given.
+/// Fused group norm followed by the activation `epilogue` (caller checked [`fusable`] and the
+/// arguments). A missing weight is ones, a missing bias zeros, when the other one is given.
 pub(crate) fn group_norm(
     x: &Tensor,
     groups: usize,
     weight: Option<&Tensor>,
     bias: Option<&Tensor>,
     eps: f64,
+    epilogue: Epilogue,
 ) -> candle_core::Result<Tensor> {
-    let op = GroupNormOp::new(groups, eps);
+    let op = GroupNormOp::new(groups, eps, epilogue);
     match (weight, bias) {
         (None, None) => apply1(x, GroupNormPlain(op)),
         (w, b) => {

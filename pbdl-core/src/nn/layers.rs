@@ -3,7 +3,8 @@
 //! Parameters are named `weight` (initialised to 1) and `bias` (initialised to 0), as in
 //! PyTorch and candle-nn, so existing checkpoints load into them.
 
-use super::norm::{check_eps, group_norm, layer_norm, rms_norm};
+use super::norm::{check_eps, layer_norm, rms_norm};
+use super::Activation;
 use crate::{Error, Result};
 use candle_core::{Module, Tensor};
 use candle_nn::{Init, VarBuilder};
@@ -179,6 +180,12 @@ impl GroupNorm {
 
     /// The forward pass with pbdl's error type.
     pub fn apply(&self, x: &Tensor) -> Result<Tensor> {
+        self.apply_act(x, Activation::Identity)
+    }
+
+    /// `act(self.apply(x))`, fused into the norm kernel for ReLU and LeakyReLU (see
+    /// [`group_norm_act`](super::group_norm_act)).
+    pub fn apply_act(&self, x: &Tensor, act: Activation) -> Result<Tensor> {
         if x.rank() < 2 || x.dims()[1] != self.num_channels {
             return Err(Error::Shape {
                 op: "GroupNorm",
@@ -187,7 +194,7 @@ impl GroupNorm {
                 got: x.dims().to_vec(),
             });
         }
-        group_norm(x, self.num_groups, self.weight.as_ref(), self.bias.as_ref(), self.eps)
+        super::group_norm_act(x, self.num_groups, self.weight.as_ref(), self.bias.as_ref(), self.eps, act)
     }
 }
 

@@ -44,6 +44,7 @@
 pub mod activation;
 pub mod batch_norm;
 mod batch_norm_fused;
+pub(crate) mod epilogue;
 mod fused;
 pub use fused::{fusion_enabled, with_composed};
 mod layers;
@@ -56,5 +57,5 @@ pub use batch_norm::{
     BatchNormConfig, BatchStats,
 };
 pub use layers::{GroupNorm, GroupNormConfig, LayerNorm, LayerNormConfig, RmsNorm, RmsNormConfig};
-pub use norm::{group_norm, group_norm_composed, layer_norm, rms_norm};
+pub use norm::{group_norm, group_norm_act, group_norm_composed, layer_norm, rms_norm};
 pub use softmax::{log_softmax, softmax};

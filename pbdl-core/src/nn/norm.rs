@@ -1,6 +1,8 @@
 //! Functional normalisations: composed from differentiable candle ops, except the fused
 //! CPU group norm (`super::fused`).
 
+use super::epilogue::Epilogue;
+use super::Activation;
 use crate::{Error, Result};
 use candle_core::{DType, Tensor};
 
@@ -174,11 +176,44 @@ pub fn group_norm(
     bias: Option<&Tensor>,
     eps: f64,
 ) -> Result<Tensor> {
+    group_norm_act(x, num_groups, weight, bias, eps, Activation::Identity)
+}
+
+/// `act(group_norm(x, ..))`: with a ReLU or LeakyReLU (positive slope) the activation is applied
+/// inside the fused group norm kernel (one op, one pass; its derivative is read off the output,
+/// 0 at exactly 0 for ReLU as in PyTorch, see `conv_act`); other activations run after it.
+///
+/// ```
+/// use candle_core::{Device, Tensor};
+/// use pbdl_core::nn::{group_norm, group_norm_act, Activation};
+///
+/// let x = Tensor::randn(0f32, 1.0, (2, 4, 5, 5), &Device::Cpu)?;
+/// let act = Activation::LeakyRelu { negative_slope: 0.2 };
+/// let fused = group_norm_act(&x, 2, None, None, 1e-5, act)?;
+/// let unfused = act.apply(&group_norm(&x, 2, None, None, 1e-5)?)?;
+/// assert_eq!(fused.flatten_all()?.to_vec1::<f32>()?, unfused.flatten_all()?.to_vec1::<f32>()?);
+/// # Ok::<(), pbdl_core::Error>(())
+/// ```
+///
+/// # Errors
+/// As [`group_norm`].
+pub fn group_norm_act(
+    x: &Tensor,
+    num_groups: usize,
+    weight: Option<&Tensor>,
+    bias: Option<&Tensor>,
+    eps: f64,
+    act: Activation,
+) -> Result<Tensor> {
     check_group_norm(x, num_groups, weight, bias, eps)?;
     if super::fused::fusable(x) {
-        return Ok(super::fused::group_norm(x, num_groups, weight, bias, eps)?);
+        if let Some(e) = Epilogue::of(act) {
+            return Ok(super::fused::group_norm(x, num_groups, weight, bias, eps, e)?);
+        }
+        let y = super::fused::group_norm(x, num_groups, weight, bias, eps, Epilogue::Identity)?;
+        return act.apply(&y);
     }
-    group_norm_composed(x, num_groups, weight, bias, eps)
+    act.apply(&group_norm_composed(x, num_groups, weight, bias, eps)?)
 }
 
 /// Checks the arguments of a group norm.
