@@ -157,13 +157,21 @@ impl std::fmt::Debug for Model {
 }
 
 impl Model {
-    /// A freshly initialised model (candle's default initialisers draw from an unseeded
-    /// generator, so initial weights differ run to run; training and sampling are seeded).
+    /// A freshly initialised model, weights from seed 0: [`Model::with_seed`].
     pub fn new(config: ModelConfig) -> Result<Self> {
+        Self::with_seed(config, 0)
+    }
+
+    /// A freshly initialised model whose weights are drawn from `seed` (PyTorch's default
+    /// layer initialisation, [`pbdl_nets::seeded_init`]): the same seed gives the same weights,
+    /// so a training run is reproducible from its configuration (candle's own initialisers
+    /// cannot be seeded).
+    pub fn with_seed(config: ModelConfig, seed: u64) -> Result<Self> {
         config.validate()?;
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
         let unet = AcdmUnet::new(config.unet(), vb)?;
+        pbdl_nets::seeded_init(&varmap, seed)?;
         let diffusion = if config.method.is_diffusion() {
             let cond = if config.method == Method::Acdm { Conditioning::Noisy } else { Conditioning::Clean };
             Some(Diffusion::new(NoiseSchedule::acdm(config.diffusion_steps)?, cond))
