@@ -1,6 +1,7 @@
 //! The fused convolution + bias + activation (`conv_act`): equal to the unfused ops (values
-//! bit for bit, gradients to f32 round-off) on every path (im2col, periodic axes, strides,
-//! groups, direct depthwise), finite-difference gradient checks in f64, second derivatives.
+//! bit for bit, gradients to f32 round-off) on the im2col path (periodic axes, strides, groups,
+//! pointwise) and the direct depthwise path (fused without a bias), finite-difference gradient
+//! checks in f64, second derivatives, transposed convolutions.
 
 mod common;
 
@@ -48,8 +49,8 @@ fn fused_equals_unfused_values_and_gradients_in_f32() {
             let fused = conv_act(&x, &w, Some(&b), &p, act).unwrap();
             let reference = unfused(&x, &w, &b, &p, act);
             if uses_direct_kernel(&xs, &ws, &p).unwrap() {
-                // The direct depthwise kernel starts its sums at the bias: the same terms,
-                // another rounding.
+                // With a bias the direct depthwise kernel starts its sums at it and the
+                // activation runs separately (not fused): the same terms, another rounding.
                 let e = rel_diff(&fused, &reference);
                 assert!(e < 1e-6, "{what}: values differ by {e:.2e}");
             } else {
@@ -100,6 +101,32 @@ fn fused_conv_without_bias_and_with_other_activations() {
     let gelu = conv_act(&x, &w, Some(&b), &p, Activation::Gelu).unwrap();
     let e = rel_diff(&gelu, &Activation::Gelu.apply(&conv2d(&x, &w, Some(&b), &p).unwrap()).unwrap());
     assert!(e <= F64_TOL, "{e:.2e}");
+}
+
+/// The direct depthwise kernel with the epilogue (no bias: with a bias the kernel adds it and
+/// the activation runs separately): values bit for bit, gradients to round-off, FD in f64.
+#[test]
+fn fused_depthwise_activation_without_bias() {
+    let p = Conv2dParams::default().padding(1).groups(4);
+    assert!(uses_direct_kernel(&[2, 4, 8, 8], &[4, 1, 3, 3], &p).unwrap());
+    for act in [Activation::Relu, Activation::LeakyRelu { negative_slope: 0.3 }] {
+        let x = Var::from_tensor(&randn(&[2, 4, 8, 8], DType::F32, 1100)).unwrap();
+        let w = Var::from_tensor(&randn(&[4, 1, 3, 3], DType::F32, 1101)).unwrap();
+        let fused = conv_act(&x, &w, None, &p, act).unwrap();
+        let reference = act.apply(&conv2d(&x, &w, None, &p).unwrap()).unwrap();
+        let (f, r) = (fused.flatten_all().unwrap(), reference.flatten_all().unwrap());
+        assert_eq!(f.to_vec1::<f32>().unwrap(), r.to_vec1::<f32>().unwrap(), "{act:?}: values");
+        let proj = randn(fused.dims(), DType::F32, 1102);
+        let gf = fused.mul(&proj).unwrap().sum_all().unwrap().backward().unwrap();
+        let gr = reference.mul(&proj).unwrap().sum_all().unwrap().backward().unwrap();
+        for (name, v) in [("x", &x), ("w", &w)] {
+            let e = rel_diff(gf.get(v).unwrap(), gr.get(v).unwrap());
+            assert!(e < F32_TOL, "{act:?}: gradient of {name} differs by {e:.2e}");
+        }
+        let inputs = [randn(&[2, 4, 8, 8], DType::F64, 1103), randn(&[4, 1, 3, 3], DType::F64, 1104)];
+        let r = check_grad(|t| Ok(conv_act(&t[0], &t[1], None, &p, act)?), &inputs, &Default::default()).unwrap();
+        assert!(r.max_rel_error <= GRAD_TOL, "{act:?}: {r:?}");
+    }
 }
 
 #[test]

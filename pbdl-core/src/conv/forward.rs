@@ -30,9 +30,14 @@ pub(crate) fn conv_forward_epilogue<T: Real>(
 ) {
     if depthwise::handles(g) {
         depthwise::forward(g, x, w, None, y);
-        if let Some((bias, e)) = epilogue {
+        if let (Some((bias, e)), true) = (epilogue, g.out_len() > 0) {
             let out_len = g.out_len();
-            y.par_chunks_mut(out_len).enumerate().for_each(|(i, plane)| e.apply(plane, bias[i % g.c_out]));
+            let run = |(i, plane): (usize, &mut [T])| e.apply(plane, bias[i % g.c_out]);
+            if crate::threads::parallel(y.len()) {
+                y.par_chunks_mut(out_len).enumerate().for_each(run);
+            } else {
+                y.chunks_mut(out_len).enumerate().for_each(run);
+            }
         }
         return;
     }

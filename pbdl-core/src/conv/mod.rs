@@ -80,7 +80,9 @@ pub fn conv<const N: usize>(
 /// `act(conv(x, weight) + bias)`, with the bias and a [`Activation::Relu`] or
 /// [`Activation::LeakyRelu`] (positive slope) fused into the convolution: one op in the
 /// gradient graph instead of three, and no separate pass for the bias gradient. Other
-/// activations are applied after the convolution. Shapes and errors as [`conv`].
+/// activations are applied after the convolution, and so is every activation of a direct
+/// depthwise convolution *with* a bias (its kernel adds the bias itself). Shapes and errors as
+/// [`conv`].
 ///
 /// The gradient at a pre-activation of exactly 0 is the mean of both slopes for LeakyReLU (as
 /// [`crate::nn::activation::leaky_relu`]) and 0 for ReLU (PyTorch's rule; the unfused

@@ -45,7 +45,8 @@ pub struct ConvParams<const N: usize> {
     /// Number of channel groups; must divide the input and output channels. `groups == in_channels`
     /// is a depthwise convolution. Default 1.
     pub groups: usize,
-    /// What lies beyond the border, per axis. Default [`PaddingMode::Zeros`].
+    /// What lies beyond the border, per axis. Default [`PaddingMode::Zeros`]. (Serialised as
+    /// an array; configurations written before it was per axis held a single value.)
     pub padding_mode: [PaddingMode; N],
 }
 
@@ -99,6 +100,9 @@ impl<const N: usize> ConvParams<N> {
     }
 
     /// Whether `axis` (0 = the first spatial axis) is periodic.
+    ///
+    /// # Panics
+    /// If `axis >= N`.
     pub fn is_circular(&self, axis: usize) -> bool {
         self.padding_mode[axis] == PaddingMode::Circular
     }

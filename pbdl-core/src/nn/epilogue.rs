@@ -32,7 +32,13 @@ impl Epilogue {
         match act {
             Activation::Identity => Some(Self::Identity),
             Activation::Relu => Some(Self::Relu),
-            Activation::LeakyRelu { negative_slope } if negative_slope > 0.0 => Some(Self::LeakyRelu(negative_slope)),
+            // A slope that is a normal positive f32 keeps the output's sign equal to the
+            // pre-activation's (no 0 * inf, no slope rounding to 0).
+            Activation::LeakyRelu { negative_slope }
+                if negative_slope > 0.0 && negative_slope.is_finite() && (negative_slope as f32).is_normal() =>
+            {
+                Some(Self::LeakyRelu(negative_slope))
+            }
             _ => None,
         }
     }
@@ -75,11 +81,12 @@ impl Epilogue {
     pub(crate) fn grad<T: Real>(self, y: T, gy: T) -> T {
         match self {
             Self::Identity => gy,
+            // A product, not a select: a NaN or infinite upstream gradient stays visible.
             Self::Relu => {
                 if y > T::zero() {
                     gy
                 } else {
-                    T::zero()
+                    gy * T::zero()
                 }
             }
             Self::LeakyRelu(slope) => {

@@ -125,18 +125,6 @@ impl ConvLstmCell {
         Ok(())
     }
 
-    fn check_width(&self, x: usize) -> Result<()> {
-        let pad = self.config.kernel_size / 2;
-        if self.config.padding == Padding::PeriodicX && x < pad {
-            return Err(Error::shape(
-                format!("ConvLSTM input (periodic x padding of {pad} needs at least {pad} columns)"),
-                format!("[.., >= {pad}]"),
-                x,
-            ));
-        }
-        Ok(())
-    }
-
     /// One step: the new state from `x` `[batch, input, y, x]` and `state` (`h`, `c`
     /// `[batch, hidden, y, x]`), with one convolution of `concat(x, h)`.
     ///
@@ -179,7 +167,6 @@ impl ConvLstmCell {
                 ))
             }
         };
-        self.check_width(xx)?;
         let mut state = match state {
             Some(s) => {
                 self.check_state(s, b, yy, xx)?;

@@ -61,6 +61,8 @@ fn sigmoid<T: Real>(v: T) -> T {
 /// `f32`) for its backward.
 struct LstmSequence {
     dims: Dims,
+    /// Whether a backward can follow (some input tracks gradients); only then are the gates kept.
+    keep: bool,
     gates: OnceLock<Arc<Vec<f64>>>,
 }
 
@@ -121,8 +123,10 @@ impl Kernel3 for LstmSequence {
                 }
             }
         }
-        // A forward runs once per op instance; a second call would only recompute the same.
-        let _ = self.gates.set(Arc::new(acts.iter().map(|v| v.wide()).collect()));
+        if self.keep {
+            // A forward runs once per op instance; a second call would only recompute the same.
+            let _ = self.gates.set(Arc::new(acts.iter().map(|v| v.wide()).collect()));
+        }
         Ok(())
     }
 }
@@ -245,5 +249,6 @@ impl Kernel3 for LstmSequenceBackward {
 pub(crate) fn lstm_sequence(xp: &Tensor, w_hh: &Tensor, state0: &Tensor) -> candle_core::Result<Tensor> {
     let (batch, time, g4) = xp.dims3()?;
     let dims = Dims { batch, time, hidden: g4 / 4 };
-    apply3(xp, w_hh, state0, LstmSequence { dims, gates: OnceLock::new() })
+    let keep = xp.track_op() || w_hh.track_op() || state0.track_op();
+    apply3(xp, w_hh, state0, LstmSequence { dims, keep, gates: OnceLock::new() })
 }

@@ -210,7 +210,10 @@ impl LstmCell {
     /// the hidden states of all steps `[batch, time, hidden]` and the last state.
     ///
     /// The input projection `x W_ih^T + b_ih + b_hh` of all steps is one matrix product; each
-    /// step adds `h W_hh^T` and applies the gates.
+    /// step adds `h W_hh^T` and applies the gates. On the CPU in `f32`/`f64` the steps run as
+    /// one fused op with a hand-written backward through time; its gradients cannot be
+    /// differentiated again (an error): for second derivatives run inside
+    /// `pbdl_core::nn::with_composed`, which uses the composed candle ops.
     ///
     /// # Errors
     /// [`Error::ShapeMismatch`] for a wrong input or state shape, or an empty sequence.
