@@ -185,5 +185,13 @@ fn fused_transposed_conv_equals_unfused_and_passes_gradient_check() {
         )
         .unwrap();
         assert!(r.max_rel_error <= GRAD_TOL, "{act:?}: {r:?}");
+        // Without a bias (the epilogue with a zero bias).
+        let r = check_grad(
+            |t| Ok(conv_transpose_act(&t[0], &t[1], None, &p, [1, 1], act)?),
+            &inputs[..2],
+            &GradCheckOptions { max_probes: 30, ..Default::default() },
+        )
+        .unwrap();
+        assert!(r.max_rel_error <= GRAD_TOL, "{act:?} without bias: {r:?}");
     }
 }

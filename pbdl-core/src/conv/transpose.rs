@@ -137,7 +137,17 @@ pub fn conv_transpose_act<const N: usize>(
         return Err(Error::DType { op: OP, arg: "weight", expected: "the dtype of `input`", got: weight.dtype() });
     }
     let y = grad_input_tensor(&geo, x, weight)?;
-    let Some(b) = bias else { return act.apply(&y) };
+    let fused = Epilogue::of(act).filter(|_| crate::nn::fusion_enabled());
+    let Some(b) = bias else {
+        // Without a bias the activation still goes through the epilogue (zero bias), so the
+        // derivative at 0 follows one rule whether or not the layer has a bias.
+        return match fused {
+            Some(e) if e != Epilogue::Identity => {
+                Ok(bias_act_tensor(&y, &Tensor::zeros(c_out, y.dtype(), y.device())?, e)?)
+            }
+            _ => act.apply(&y),
+        };
+    };
     if b.dims() != [c_out] {
         return Err(Error::Shape {
             op: OP,
@@ -149,7 +159,7 @@ pub fn conv_transpose_act<const N: usize>(
     if b.dtype() != x.dtype() {
         return Err(Error::DType { op: OP, arg: "bias", expected: "the dtype of `input`", got: b.dtype() });
     }
-    match Epilogue::of(act).filter(|_| crate::nn::fusion_enabled()) {
+    match fused {
         Some(e) => Ok(bias_act_tensor(&y, b, e)?),
         None => {
             let mut shape = vec![1; N + 2];
