@@ -80,9 +80,7 @@ pub fn conv<const N: usize>(
 /// `act(conv(x, weight) + bias)`, with the bias and a [`Activation::Relu`] or
 /// [`Activation::LeakyRelu`] (positive slope) fused into the convolution: one op in the
 /// gradient graph instead of three, and no separate pass for the bias gradient. Other
-/// activations are applied after the convolution, and so is every activation of a direct
-/// depthwise convolution *with* a bias (its kernel adds the bias itself). Shapes and errors as
-/// [`conv`].
+/// activations are applied after the convolution. Shapes and errors as [`conv`].
 ///
 /// The gradient at a pre-activation of exactly 0 is the mean of both slopes for LeakyReLU (as
 /// [`crate::nn::activation::leaky_relu`]) and 0 for ReLU (PyTorch's rule; the unfused
@@ -183,11 +181,13 @@ fn conv_with<const N: usize>(
             });
         }
     }
-    if let (Some(b), true) = (bias, depthwise::handles(&geo)) {
+    let fused = if crate::nn::fusion_enabled() { Epilogue::of(activation) } else { None };
+    // A direct depthwise kernel adds its bias itself; with a fusable activation the epilogue
+    // adds it instead, so the activation's derivative follows the same rule as elsewhere.
+    if let (Some(b), true, None | Some(Epilogue::Identity)) = (bias, depthwise::handles(&geo), fused) {
         let y = depthwise::conv_bias_tensor(&geo, x, weight, b)?;
         return activation.apply(&y);
     }
-    let fused = if crate::nn::fusion_enabled() { Epilogue::of(activation) } else { None };
     match (fused, bias) {
         (Some(Epilogue::Identity), None) => Ok(forward::conv_tensor(&geo, x, weight)?),
         (Some(e), _) => Ok(epilogue::conv_bias_act_tensor(&geo, x, weight, bias, e)?),
