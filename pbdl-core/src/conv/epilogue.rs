@@ -14,7 +14,6 @@
 use super::backward::{grad_input_tensor, grad_weight_tensor};
 use super::forward::conv_forward_epilogue;
 use super::geometry::{expect_shape, Geometry};
-use crate::nn::epilogue::act_grad;
 pub(crate) use crate::nn::epilogue::Epilogue;
 use crate::op::{apply1, apply2, apply3, grad_if_tracked, Kernel1, Kernel2, Kernel3, Op1, Op2, Op3};
 use crate::Real;
@@ -64,10 +63,7 @@ impl Op3 for ConvBiasAct {
         y: &Tensor,
         gy: &Tensor,
     ) -> candle_core::Result<(Tensor, Tensor, Tensor)> {
-        let g_pre = match self.epilogue {
-            Epilogue::Identity => gy.clone(),
-            e => act_grad(y, gy, e)?,
-        };
+        let g_pre = self.epilogue.pre_activation_grad(y, gy)?;
         let gx = grad_if_tracked(x, || grad_input_tensor(&self.geo, &g_pre, w))?;
         let gw = grad_if_tracked(w, || grad_weight_tensor(&self.geo, x, &g_pre))?;
         let gb = grad_if_tracked(b, || apply1(&g_pre, ChannelSum))?;
@@ -154,10 +150,7 @@ impl Kernel2 for BiasAct {
 
 impl Op2 for BiasAct {
     fn backward(&self, _z: &Tensor, b: &Tensor, y: &Tensor, gy: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
-        let g_pre = match self.0 {
-            Epilogue::Identity => gy.clone(),
-            e => act_grad(y, gy, e)?,
-        };
+        let g_pre = self.0.pre_activation_grad(y, gy)?;
         let gb = grad_if_tracked(b, || apply1(&g_pre, ChannelSum))?;
         Ok((g_pre, gb))
     }

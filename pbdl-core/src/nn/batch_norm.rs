@@ -82,7 +82,8 @@
 //! # Ok::<(), pbdl_core::Error>(())
 //! ```
 
-use super::batch_norm_fused::{self as fused, BatchNormOp, Epilogue};
+use super::batch_norm_fused::{self as fused, BatchNormOp};
+use super::epilogue::Epilogue;
 use super::norm::check_eps;
 use super::Activation;
 use crate::{Error, Result};
@@ -260,7 +261,7 @@ pub fn batch_norm_train(
     check_channel_param(OP, "bias", bias, c, x)?;
     let count = check_train_count(OP, x)?;
     let (w, b) = params_or_default(x, c, weight, bias)?;
-    let epilogue = Epilogue::of(&activation);
+    let epilogue = Epilogue::of_with_pre_activation(activation);
     let batch = Arc::new(OnceLock::new());
     let op = BatchNormOp::train(eps, epilogue.unwrap_or(Epilogue::Identity), batch.clone());
     let y = fused::apply(x, &w, &b, op)?;
@@ -322,7 +323,7 @@ pub fn batch_norm_eval(
     check_channel_param(OP, "bias", bias, c, x)?;
     let (w, b) = params_or_default(x, c, weight, bias)?;
     let stats = to_f64s(mean)?.into_iter().zip(to_f64s(var)?).map(|(m, v)| [m, v]).collect();
-    let epilogue = Epilogue::of(&activation);
+    let epilogue = Epilogue::of_with_pre_activation(activation);
     let op = BatchNormOp::eval(eps, epilogue.unwrap_or(Epilogue::Identity), stats);
     let y = fused::apply(x, &w, &b, op)?;
     if epilogue.is_some() {

@@ -21,6 +21,7 @@
 //! the result does not depend on the thread count. Small inputs run serially
 //! ([`crate::threads::parallel`]).
 
+use super::epilogue::Epilogue;
 use super::fused::sum_f64;
 use crate::op::{apply3, dense};
 use crate::op::{Kernel3, Op3};
@@ -32,29 +33,6 @@ use std::sync::{Arc, OnceLock};
 
 /// Slabs of one rayon task hold at least this many elements together.
 const MIN_TASK: usize = 1 << 13;
-
-/// The activation applied after the affine map, inside the kernel.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) enum Epilogue {
-    /// `y = z`.
-    Identity,
-    /// `y = max(z, 0)`.
-    Relu,
-    /// `y = z` for `z > 0`, `slope z` otherwise.
-    LeakyRelu(f64),
-}
-
-impl Epilogue {
-    /// The fused form of `act`, if the kernel has one.
-    pub(crate) fn of(act: &super::Activation) -> Option<Self> {
-        match *act {
-            super::Activation::Identity => Some(Self::Identity),
-            super::Activation::Relu => Some(Self::Relu),
-            super::Activation::LeakyRelu { negative_slope } => Some(Self::LeakyRelu(negative_slope)),
-            _ => None,
-        }
-    }
-}
 
 /// Sizes of a batch norm problem read as `[batch, channel, spatial]`.
 #[derive(Clone, Copy, Debug)]

@@ -1,6 +1,8 @@
 //! Activation epilogues of fused kernels: ReLU and LeakyReLU (positive slope) applied to a
 //! kernel's output in place, and their backward, which reads the derivative off the output so
-//! no pre-activation buffer is kept. Used by the fused convolution and the fused group norm.
+//! no pre-activation buffer is kept. Used by the fused convolution and the fused group norm;
+//! the batch norm kernel shares the type but keeps its pre-activation (see
+//! [`Epilogue::of_with_pre_activation`]).
 //!
 //! The derivative at a pre-activation of exactly 0: LeakyReLU (slope > 0, so the output is 0
 //! only there) uses the mean of both slopes, like [`super::activation::leaky_relu`]; ReLU
@@ -21,7 +23,7 @@ pub(crate) enum Epilogue {
     Identity,
     /// `max(v, 0)`.
     Relu,
-    /// `v` for `v > 0`, `slope v` otherwise; `slope > 0`.
+    /// `v` for `v > 0`, `slope v` otherwise (`slope > 0` when built by [`Epilogue::of`]).
     LeakyRelu(f64),
 }
 
@@ -40,6 +42,25 @@ impl Epilogue {
                 Some(Self::LeakyRelu(negative_slope))
             }
             _ => None,
+        }
+    }
+
+    /// The epilogue computing `act` in a kernel that keeps its pre-activation and
+    /// differentiates with it (batch norm): any LeakyReLU slope, or `None` for activations
+    /// the kernel has no form of.
+    pub(crate) fn of_with_pre_activation(act: Activation) -> Option<Self> {
+        match act {
+            Activation::LeakyRelu { negative_slope } => Some(Self::LeakyRelu(negative_slope)),
+            a => Self::of(a),
+        }
+    }
+
+    /// The gradient with respect to the pre-activation, from the kernel's output `y` and the
+    /// output gradient `gy` (differentiable again).
+    pub(crate) fn pre_activation_grad(self, y: &Tensor, gy: &Tensor) -> candle_core::Result<Tensor> {
+        match self {
+            Self::Identity => Ok(gy.clone()),
+            e => apply2(y, gy, ActGrad(e)),
         }
     }
 
@@ -141,9 +162,4 @@ impl Op2 for ActGrad {
     fn backward(&self, y: &Tensor, _gy: &Tensor, _out: &Tensor, gg: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
         Ok((zeros_like(y)?, apply2(y, gg, ActGrad(self.0))?))
     }
-}
-
-/// `gy * act'(y)` for the output `y` of a kernel with epilogue `e` (differentiable again).
-pub(crate) fn act_grad(y: &Tensor, gy: &Tensor, e: Epilogue) -> candle_core::Result<Tensor> {
-    apply2(y, gy, ActGrad(e))
 }

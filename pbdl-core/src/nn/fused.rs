@@ -23,7 +23,7 @@
 //! Setting the environment variable `PBDL_NN_COMPOSED=1` (read once per process) routes both
 //! functions to the composed versions; it exists for A/B timings of whole networks.
 
-use super::epilogue::{act_grad, Epilogue};
+use super::epilogue::Epilogue;
 use crate::op::{apply1, apply3, apply_kernel2, dense, Kernel1, Kernel2, Kernel3, Op1, Op3};
 use crate::Real;
 use candle_core::cpu::erf::{erf_f32, erf_f64};
@@ -374,14 +374,6 @@ impl GroupNormOp {
         Self { groups, eps, epilogue, stats: OnceLock::new() }
     }
 
-    /// The gradient with respect to the normalised (pre-activation) output.
-    fn pre_activation_grad(&self, y: &Tensor, grad_y: &Tensor) -> candle_core::Result<Tensor> {
-        match self.epilogue {
-            Epilogue::Identity => Ok(grad_y.clone()),
-            e => act_grad(y, grad_y, e),
-        }
-    }
-
     fn dims(&self, x: &Shape) -> candle_core::Result<Dims> {
         let d = x.dims();
         if d.len() < 2 || self.groups == 0 || d[1] % self.groups != 0 {
@@ -630,7 +622,7 @@ impl Kernel1 for GroupNormPlain {
 
 impl Op1 for GroupNormPlain {
     fn backward(&self, x: &Tensor, y: &Tensor, grad_y: &Tensor) -> candle_core::Result<Tensor> {
-        Ok(self.0.backward_any(x, None, &self.0.pre_activation_grad(y, grad_y)?)?.0)
+        Ok(self.0.backward_any(x, None, &self.0.epilogue.pre_activation_grad(y, grad_y)?)?.0)
     }
 }
 
@@ -672,7 +664,7 @@ impl Op3 for GroupNormAffine {
         y: &Tensor,
         grad_y: &Tensor,
     ) -> candle_core::Result<(Tensor, Tensor, Tensor)> {
-        let (gx, params) = self.0.backward_any(x, Some(w), &self.0.pre_activation_grad(y, grad_y)?)?;
+        let (gx, params) = self.0.backward_any(x, Some(w), &self.0.epilogue.pre_activation_grad(y, grad_y)?)?;
         let [gw, gb] = params.expect("the affine backward returns parameter gradients");
         Ok((gx, gw, gb))
     }

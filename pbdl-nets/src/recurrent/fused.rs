@@ -110,12 +110,11 @@ impl Kernel3 for LstmSequence {
                     let v = pre_t[j * batch + b] + xrow[j];
                     arow[j] = if (2 * h..3 * h).contains(&j) { v.tanh() } else { sigmoid(v) };
                 }
-                let c_prev: Vec<T> = if t == 0 {
-                    s0[b * 2 * h + h..][..h].to_vec()
-                } else {
-                    out[(b * time + t - 1) * 2 * h + h..][..h].to_vec()
-                };
-                let orow = &mut out[(b * time + t) * 2 * h..][..2 * h];
+                // The previous step's row lies before this one: split instead of copying it.
+                let (done, rest) = out.split_at_mut((b * time + t) * 2 * h);
+                let c_prev =
+                    if t == 0 { &s0[b * 2 * h + h..][..h] } else { &done[(b * time + t - 1) * 2 * h + h..][..h] };
+                let orow = &mut rest[..2 * h];
                 for k in 0..h {
                     let (i, f, g, o) = (arow[k], arow[h + k], arow[2 * h + k], arow[3 * h + k]);
                     let c = f * c_prev[k] + i * g;
