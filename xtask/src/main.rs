@@ -12,6 +12,8 @@
 //!   fields as one JSON object (see `pbdl_metrics::files`).
 //! * `weights convert IN.pth OUT.safetensors`: the official LSiM / VolSiM checkpoints (legacy
 //!   PyTorch pickles) to the safetensors files `pbdl_metrics` loads.
+//! * `weather score --forecast F --truth T`: WeatherBench's official scores (RMSE, MAE, ACC,
+//!   per lead time) of NetCDF or `.npy` files as one JSON object.
 //! * `ci`: format check, clippy with `-D warnings`, the test suite.
 
 mod bench;
@@ -21,6 +23,7 @@ mod report;
 mod sim;
 mod stress;
 mod tour;
+mod weather;
 mod weights;
 
 use clap::{Parser, Subcommand};
@@ -149,11 +152,54 @@ enum Command {
     /// Weight files of the learned metrics.
     #[command(subcommand)]
     Weights(WeightsCommand),
+    /// WeatherBench: official scores of forecast files.
+    #[command(subcommand)]
+    Weather(WeatherCommand),
     /// fmt check, clippy -D warnings, tests.
     Ci,
     /// List the registered tour, bench and stress entries.
     List,
 }
+
+#[derive(Subcommand)]
+enum WeatherCommand {
+    /// Score a forecast against the truth as WeatherBench's score.py does (latitude-weighted,
+    /// f64); prints one JSON object on the last line.
+    #[command(after_help = WEATHER_SCORE_HELP)]
+    Score {
+        /// Forecast: NetCDF (classic or NetCDF-4) or .npy [time, lat, lon].
+        #[arg(long)]
+        forecast: PathBuf,
+        /// Truth: NetCDF or .npy [time, lat, lon]; must hold no NaN.
+        #[arg(long)]
+        truth: PathBuf,
+        /// Variable to score (default: the file's only data variable).
+        #[arg(long)]
+        var: Option<String>,
+        /// rmse (one square root over time and space, score.py's default), rmse_mean_per_time
+        /// (the paper's mean of per-forecast RMSEs), mae or acc.
+        #[arg(long, default_value = "rmse")]
+        metric: String,
+        /// Latitudes (degrees, 1-D .npy) of .npy inputs.
+        #[arg(long)]
+        lat: Option<PathBuf>,
+        /// Pressure level (hPa) of a variable with a level dimension (default: 500 for z, 850 for t).
+        #[arg(long)]
+        level: Option<f64>,
+    },
+}
+
+const WEATHER_SCORE_HELP: &str = "\
+NetCDF variables are [time, lat, lon] or [time, level, lat, lon] at valid times, or
+[lead_time, time, lat, lon] with time = initialisation time and lead_time in hours (NaN where
+no truth exists): then each lead is scored at valid time = init + lead and the output is
+{\"lead_time\": [...], \"rmse\": [...]}. Forecast and truth are joined on time (inner join);
+.npy inputs are matched by position. WeatherBench 2 names (latitude, longitude,
+prediction_timedelta) are accepted; latitudes must ascend.
+
+Examples:
+  cargo xtask weather score --forecast fc.nc --truth z500_2017.nc --var z
+  cargo xtask weather score --forecast fc.npy --truth truth.npy --lat lat.npy --metric acc";
 
 #[derive(Subcommand)]
 enum WeightsCommand {
@@ -241,6 +287,9 @@ fn main() -> anyhow::Result<()> {
             metric::run(metric::MetricArgs { metric, a, b, weights, native, joint_batch, resize64 })
         }
         Command::Weights(WeightsCommand::Convert { input, output }) => weights::convert(&input, &output),
+        Command::Weather(WeatherCommand::Score { forecast, truth, var, metric, lat, level }) => {
+            weather::score(weather::ScoreArgs { forecast, truth, var, metric, lat, level })
+        }
         Command::Ci => ci::run(),
         Command::List => {
             registry::print_list();

@@ -1,0 +1,34 @@
+//! # pbdl-weather
+//!
+//! WeatherBench (Rasp et al. 2020) for pbdl: lat-lon fields read from the benchmark's files,
+//! scored exactly as the official `score.py` scores them.
+//!
+//! | module | what it gives you |
+//! |---|---|
+//! | [`grid`] | [`LatLonGrid`] (ascending latitudes without poles, longitudes 0..360), latitude and area weights |
+//! | [`time`] | CF time units to seconds, calendar dates, day of year |
+//! | [`field`] | [`Field`] `[time, lat, lon]`, [`LeadForecast`] `[lead, time, lat, lon]`, [`Forecast`] |
+//! | [`io`] | NetCDF (classic and NetCDF-4, pure Rust) and `.npy` readers and writers with typed errors |
+//! | [`score`] | latitude-weighted RMSE (one root; and the paper's per-time mean), MAE, ACC; per lead time |
+//! | [`error`] | [`Error`], [`Result`] |
+//!
+//! ```
+//! use pbdl_weather::{field::Values, score::{score, Metric}, Field, LatLonGrid};
+//! let grid = LatLonGrid::weatherbench(32); // 5.625 degrees: 32 x 64
+//! let truth = Field::new("z", Some(vec![0, 3600]), grid.clone(), Values::F64(vec![50_000.0; 2 * 32 * 64]))?;
+//! let forecast = Field::new("z", Some(vec![0, 3600]), grid, Values::F64(vec![50_100.0; 2 * 32 * 64]))?;
+//! assert!((score(Metric::Rmse, &forecast, &truth)? - 100.0).abs() < 1e-9);
+//! # Ok::<(), pbdl_weather::Error>(())
+//! ```
+#![warn(missing_docs)]
+
+pub mod error;
+pub mod field;
+pub mod grid;
+pub mod io;
+pub mod score;
+pub mod time;
+
+pub use error::{Error, Result};
+pub use field::{Field, Forecast, LeadForecast};
+pub use grid::LatLonGrid;
