@@ -254,13 +254,15 @@ fn weighted_sums<F: Sample, O: Sample>(
             for (row, &w) in weights.iter().enumerate() {
                 let (fr, or) = (&fp[row * n_lon..(row + 1) * n_lon], &op[row * n_lon..(row + 1) * n_lon]);
                 let mut row_sum = 0.0;
+                // Branch-free so that the loop vectorises: NaN terms add 0 and count 0.
+                let mut row_count = 0usize;
                 for (a, b) in fr.iter().zip(or) {
                     let e = a.get() - b.get();
-                    if !e.is_nan() {
-                        row_sum += g(e);
-                        count += 1;
-                    }
+                    let valid = !e.is_nan();
+                    row_sum += if valid { g(e) } else { 0.0 };
+                    row_count += valid as usize;
                 }
+                count += row_count;
                 sum += w * row_sum;
             }
             (sum, count)

@@ -252,7 +252,9 @@ fn select_level(r: &Reader, var: &str, dim: &str, n: usize, wanted: Option<f64>)
 fn read_values(r: &Reader, var: &NcVariable, axes: &[Axis], level: Option<usize>) -> Result<Values> {
     let shape: Vec<usize> = var.shape().iter().map(|&s| s as usize).collect();
     let has = |name: &str| var.attribute(name).is_some();
-    let cf_decode = has("_FillValue") || has("missing_value") || has("scale_factor") || has("add_offset");
+    // A NaN fill value (xarray's default for floats) needs no masking: missing values are NaN already.
+    let real_fill = |name: &str| var.attribute(name).and_then(|a| a.value.as_f64()).is_some_and(|x| !x.is_nan());
+    let cf_decode = real_fill("_FillValue") || real_fill("missing_value") || has("scale_factor") || has("add_offset");
     let native_f32 = matches!(var.dtype(), NcType::Float) && !cf_decode;
     let full = |n: usize| NcSliceInfoElem::Slice { start: 0, end: n as u64, step: 1 };
     let total: usize = axes.iter().zip(&shape).filter(|(a, _)| **a != Axis::Level).map(|(_, &s)| s).product();
@@ -260,6 +262,12 @@ fn read_values(r: &Reader, var: &NcVariable, axes: &[Axis], level: Option<usize>
     let outer = if axes[0] == Axis::Lat || axes[0] == Axis::Level { None } else { Some(shape[0]) };
     let mut values =
         if native_f32 { Values::F32(Vec::with_capacity(total)) } else { Values::F64(Vec::with_capacity(total)) };
+    // Without a level to pick, a stored float32 variable is read straight into its buffer.
+    if let (Values::F32(v), None) = (&mut values, level) {
+        v.resize(total, 0.0);
+        r.file.read_variable_into::<f32>(var.name(), v).map_err(|e| r.nc_err(e))?;
+        return Ok(values);
+    }
     let blocks: Vec<(usize, usize)> = match outer {
         None => vec![(0, 1)],
         Some(n) => (0..n).step_by(TIME_BLOCK).map(|s| (s, (s + TIME_BLOCK).min(n))).collect(),

@@ -8,3 +8,4 @@ pub mod metrics;
 pub mod nets;
 pub mod optim;
 pub mod particles;
+pub mod weather;

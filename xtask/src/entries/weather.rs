@@ -1,0 +1,92 @@
+//! `pbdl-weather`'s entries for `cargo xtask` (see [`crate::registry`]).
+//!
+//! * bench `score_year`: WeatherBench's RMSE, MAE and ACC of a year of hourly 32x64 float32
+//!   fields held in memory, and reading that year from NetCDF-4 and classic files (the files
+//!   `bench/peers/weather_run.sh` wrote with xarray, where present, else pbdl's own). The peer
+//!   script times the official score.py and xarray on the same sizes; `cargo xtask bench`
+//!   merges its rows.
+
+use crate::bench_schema::{median_seconds, BenchRow};
+use crate::registry::{CrateTasks, Entry, TaskContext, TaskResult};
+use pbdl_weather::field::Values;
+use pbdl_weather::io::netcdf::{write, Flavour};
+use pbdl_weather::io::{read_truth, Selection};
+use pbdl_weather::score::{score, Metric};
+use pbdl_weather::{Field, Forecast, LatLonGrid};
+use std::path::PathBuf;
+
+/// The entries of `pbdl-weather`.
+pub fn tasks() -> CrateTasks {
+    CrateTasks {
+        crate_name: "weather",
+        tour: vec![],
+        bench: vec![Entry {
+            name: "score_year",
+            about: "RMSE/MAE/ACC of a year of hourly 32x64 float32 fields; reading the year from NetCDF-4 and classic files.",
+            run: bench_score_year,
+        }],
+        stress: vec![],
+    }
+}
+
+/// A year (or `n_time` hours) of a Z500-like float32 field with seeded noise.
+fn year_of_fields(seed: u64, n_time: usize) -> Field {
+    let grid = LatLonGrid::weatherbench(32);
+    let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut values = Vec::with_capacity(n_time * 2048);
+    for _ in 0..n_time {
+        for lat in &grid.lat {
+            for _ in 0..64 {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                let u = (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+                values.push((54_000.0 + 2000.0 * lat.to_radians().cos() + 600.0 * u) as f32);
+            }
+        }
+    }
+    let times = (0..n_time as i64).map(|t| 1_483_228_800 + 3600 * t).collect(); // from 2017-01-01
+    Field::new("z", Some(times), grid, Values::F32(values)).expect("valid synthetic field")
+}
+
+fn bench_score_year(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    let n_time = if ctx.quick { 876 } else { 8760 };
+    let reps = if ctx.quick { 3 } else { 9 };
+    let size = format!("{n_time}x32x64_f32");
+    let (truth, fc) = (year_of_fields(0, n_time), year_of_fields(1, n_time));
+    let mut rows = Vec::new();
+    let row = |case: String, size: String, seconds: f64, unit: &str| BenchRow {
+        case,
+        method: "pbdl".into(),
+        size,
+        seconds,
+        unit: unit.into(),
+        error: None,
+        error_kind: String::new(),
+        peer: false,
+        threads: ctx.threads,
+    };
+    for metric in [Metric::Rmse, Metric::Mae, Metric::Acc] {
+        let s = median_seconds(1, reps, || score(metric, &fc, &truth).expect("scores"));
+        rows.push(row(format!("score_year_{}", metric.name()), size.clone(), s, "call"));
+    }
+    // The peer script's files (written by xarray / libnetcdf) when present, else our own.
+    let peer_dir = PathBuf::from("target/pbdl/weather-bench");
+    for (flavour, tag) in [(Flavour::Nc4, "nc4"), (Flavour::Classic, "nc3")] {
+        let peer_file = peer_dir.join(format!("truth_year_{tag}.nc"));
+        let (path, method) = if peer_file.is_file() && !ctx.quick {
+            (peer_file, "pbdl (file by xarray)")
+        } else {
+            let p = ctx.out_dir.join(format!("truth_year_{tag}.nc"));
+            write(&p, &Forecast::Direct(truth.clone()), flavour)?;
+            (p, "pbdl (file by pbdl)")
+        };
+        let mb = std::fs::metadata(&path)?.len() as f64 / 1e6;
+        let sel = Selection { var: Some("z".into()), ..Default::default() };
+        let s = median_seconds(1, reps, || read_truth(&path, &sel).expect("reads"));
+        let mut r = row(format!("read_year_{tag}"), format!("{size}_{mb:.0}MB"), s, "file");
+        r.method = method.into();
+        rows.push(r);
+    }
+    Ok(rows)
+}
