@@ -9,6 +9,8 @@
 //! | [`time`] | CF time units to seconds, calendar dates, day of year |
 //! | [`field`] | [`Field`] `[time, lat, lon]`, [`LeadForecast`] `[lead, time, lat, lon]`, [`Forecast`] |
 //! | [`io`] | NetCDF (classic and NetCDF-4, pure Rust) and `.npy` readers and writers with typed errors |
+//! | [`baselines`] | persistence, climatology, weekly climatology, linear regression (direct and iterative) |
+//! | [`lorenz96`] | Lorenz-96 trajectories as fields: the unit-test tier of stand-in data |
 //! | [`score`] | latitude-weighted RMSE (one root; and the paper's per-time mean), MAE, ACC; per lead time |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
@@ -22,10 +24,12 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod baselines;
 pub mod error;
 pub mod field;
 pub mod grid;
 pub mod io;
+pub mod lorenz96;
 pub mod score;
 pub mod time;
 
