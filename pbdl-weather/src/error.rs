@@ -78,6 +78,9 @@ pub enum Error {
     /// Two fields do not fit together.
     #[error("forecast and truth do not match: {0}")]
     Mismatch(String),
+    /// Building or running a network failed (shape or tensor errors from candle).
+    #[error("model: {0}")]
+    Model(String),
     /// An argument is out of its domain.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
