@@ -42,7 +42,16 @@ impl ResNetConfig {
     /// `in_channels` = 117 (38 channels at t, t-6h, t-12h plus 3 constants) or 118 with the
     /// continuous lead time; 3 outputs (z500, t850, t2m).
     pub fn full_size(in_channels: usize, out_channels: usize) -> Self {
-        Self { in_channels, out_channels, width: 128, blocks: 19, first_kernel: 7, kernel: 3, dropout: 0.1, leaky_slope: 0.3 }
+        Self {
+            in_channels,
+            out_channels,
+            width: 128,
+            blocks: 19,
+            first_kernel: 7,
+            kernel: 3,
+            dropout: 0.1,
+            leaky_slope: 0.3,
+        }
     }
 
     /// A network that trains on two CPU cores in minutes: width 32, 4 residual blocks.
@@ -133,8 +142,9 @@ impl WeatherResNet {
                 ))
             })
             .collect::<Result<_>>()?;
-        let output = PaddedConv2d::same(config.width, config.out_channels, config.kernel, Padding::PeriodicX, vb.pp("out"))
-            .map_err(nets_err)?;
+        let output =
+            PaddedConv2d::same(config.width, config.out_channels, config.kernel, Padding::PeriodicX, vb.pp("out"))
+                .map_err(nets_err)?;
         Ok(Self { config, input, blocks, output })
     }
 
@@ -189,7 +199,9 @@ mod tests {
         let net = WeatherResNet::new(ResNetConfig { width: 8, blocks: 2, ..ResNetConfig::cpu_size(3, 2) }, vb).unwrap();
         pbdl_nets::seeded_init(&varmap, 3).unwrap();
         let x = pbdl_core::seed::randn((2, 3, 8, 16), 0.0, 1.0, DType::F32, &Device::Cpu, 4).unwrap();
-        let roll = |t: &Tensor, n: usize| Tensor::cat(&[t.narrow(3, 16 - n, n).unwrap(), t.narrow(3, 0, 16 - n).unwrap()], 3).unwrap();
+        let roll = |t: &Tensor, n: usize| {
+            Tensor::cat(&[t.narrow(3, 16 - n, n).unwrap(), t.narrow(3, 0, 16 - n).unwrap()], 3).unwrap()
+        };
         let y = net.forward(&x, false, 0).unwrap();
         for n in [1, 5, 8] {
             let a = net.forward(&roll(&x, n), false, 0).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
