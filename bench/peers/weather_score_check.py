@@ -71,18 +71,29 @@ def main():
         it = xr.DataArray(vals, dims=("lead_time", "time", "lat", "lon"),
                           coords={"lead_time": leads, "time": inits, "lat": truth.lat, "lon": truth.lon}, name="z")
         paths = {}
-        for flavour, fmt in [("nc4", "NETCDF4"), ("nc3", "NETCDF3_64BIT")]:
+        flavours = [("nc4", "NETCDF4", False), ("nc4z", "NETCDF4", True), ("nc3", "NETCDF3_64BIT", False)]
+        for flavour, fmt, zlib in flavours:
             for name, da in [("truth", truth), ("fc", fc), ("iter", it)]:
                 p = os.path.join(args.out, f"{name}_{seed}_{flavour}.nc")
-                da.to_dataset().to_netcdf(p, format=fmt)
+                enc = {"z": {"zlib": True, "complevel": 4, "shuffle": True}} if zlib else None
+                da.to_dataset().to_netcdf(p, format=fmt, encoding=enc)
                 paths[(name, flavour)] = p
+        # the truth as WeatherBench's multi-level files store it: [time, level, lat, lon]
+        lev = xr.concat([truth + 1000.0, truth], dim=xr.DataArray([300, 500], dims="level", name="level"))
+        lev = lev.transpose("time", "level", "lat", "lon")
+        lev_path = os.path.join(args.out, f"truth_{seed}_levels.nc")
+        lev.to_dataset(name="z").to_netcdf(lev_path, format="NETCDF4")
         np.save(os.path.join(args.out, f"lat.npy"), truth.lat.values)
         fc_same = fc.sel(time=fc.time)  # positional .npy case needs equal times
         truth_same = truth.sel(time=fc.time)
         np.save(os.path.join(args.out, f"fc_{seed}.npy"), fc_same.values)
         np.save(os.path.join(args.out, f"truth_{seed}.npy"), truth_same.values)
         cases = []
-        for flavour in ["nc4", "nc3"]:
+        for metric in ["rmse", "acc"]:
+            ref = float(funcs[metric](fc, lev.sel(level=500).drop_vars("level")))
+            got = run_pbdl(args.xtask, paths[("fc", "nc4")], lev_path, metric, ["--var", "z"])[metric]
+            cases.append(("truth with levels (500 picked)", metric, ref, got))
+        for flavour in ["nc4", "nc4z", "nc3"]:
             for metric in ["rmse", "mae", "acc"]:
                 ref = float(funcs[metric](fc, truth))
                 got = run_pbdl(args.xtask, paths[("fc", flavour)], paths[("truth", flavour)], metric)[metric]
