@@ -149,7 +149,7 @@ impl LinearRegression {
     /// a tiny value keeps the normal equations solvable when points are collinear).
     pub fn fit(train: &Field, lead_hours: f64, stride: usize, ridge: f64) -> Result<Self> {
         let times = times_of(train)?;
-        if stride == 0 || !(ridge >= 0.0) {
+        if stride == 0 || ridge.is_nan() || ridge < 0.0 {
             return Err(Error::InvalidArgument(format!("stride must be >= 1 and ridge >= 0 (got {stride}, {ridge})")));
         }
         let p = plane_len(train);

@@ -5,13 +5,18 @@
 //!
 //! | module | what it gives you |
 //! |---|---|
+//! | [`forecaster`] | the Rasp & Thuerey ResNet (periodic in longitude, LeakyReLU, BatchNorm, dropout) |
 //! | [`grid`] | [`LatLonGrid`] (ascending latitudes without poles, longitudes 0..360), latitude and area weights |
+//! | [`standin`] | the stand-in climate: forced-dissipative shallow water with seasons, mountains and a T850-like tracer; a biased "climate model" variant |
 //! | [`time`] | CF time units to seconds, calendar dates, day of year |
+//! | [`evaluation`] | RMSE and ACC against lead time for every baseline and a trained forecaster, markdown tables |
 //! | [`field`] | [`Field`] `[time, lat, lon]`, [`LeadForecast`] `[lead, time, lat, lon]`, [`Forecast`] |
 //! | [`io`] | NetCDF (classic and NetCDF-4, pure Rust) and `.npy` readers and writers with typed errors |
 //! | [`baselines`] | persistence, climatology, weekly climatology, linear regression (direct and iterative) |
 //! | [`lorenz96`] | Lorenz-96 trajectories as fields: the unit-test tier of stand-in data |
+//! | [`shallow_water`] | global spectral shallow-water model (Gaussian grid, T21/T42, semi-implicit), Williamson tests 2 and 6 |
 //! | [`score`] | latitude-weighted RMSE (one root; and the paper's per-time mean), MAE, ACC; per lead time |
+//! | [`wb2`] | WeatherBench 2 variants: area weights, RMSE of the time-mean MSE, per-time ACC against a day-of-year x hour climatology |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
 //! ```
@@ -26,12 +31,17 @@
 
 pub mod baselines;
 pub mod error;
+pub mod evaluation;
 pub mod field;
+pub mod forecaster;
 pub mod grid;
 pub mod io;
 pub mod lorenz96;
 pub mod score;
+pub mod shallow_water;
+pub mod standin;
 pub mod time;
+pub mod wb2;
 
 pub use error::{Error, Result};
 pub use field::{Field, Forecast, LeadForecast};

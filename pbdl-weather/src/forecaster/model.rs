@@ -70,7 +70,7 @@ impl ResNetConfig {
                 self.first_kernel, self.kernel
             )));
         }
-        if !(0.0..1.0).contains(&self.dropout) || !(self.leaky_slope > 0.0) {
+        if !(0.0..1.0).contains(&self.dropout) || self.leaky_slope.is_nan() || self.leaky_slope <= 0.0 {
             return Err(Error::InvalidArgument(format!(
                 "dropout must be in [0, 1) and the LeakyReLU slope positive (got {}, {})",
                 self.dropout, self.leaky_slope

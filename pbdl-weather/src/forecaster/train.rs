@@ -186,7 +186,12 @@ pub fn train(
     spec: &SampleSpec,
     cfg: &TrainConfig,
 ) -> Result<TrainState> {
-    if cfg.batch == 0 || !(cfg.lr > 0.0) || !(0.0 < cfg.plateau_factor && cfg.plateau_factor < 1.0) {
+    if cfg.batch == 0
+        || cfg.lr.is_nan()
+        || cfg.lr <= 0.0
+        || !(0.0..1.0).contains(&cfg.plateau_factor)
+        || cfg.plateau_factor == 0.0
+    {
         return Err(Error::InvalidArgument(format!("batch must be >= 1, lr > 0, plateau factor in (0, 1): {cfg:?}")));
     }
     let inits = spec.init_indices(train);
