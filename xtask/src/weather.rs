@@ -35,3 +35,262 @@ pub fn score(args: ScoreArgs) -> anyhow::Result<()> {
     println!("{}", result.to_json(metric));
     Ok(())
 }
+
+// ---------------------------------------------------------------------------------------------
+// generate | train | eval on the stand-in climate
+
+use candle_core::{DType, Device};
+use candle_nn::{VarBuilder, VarMap};
+use pbdl_core::train::Progress;
+use pbdl_weather::evaluation::{baseline_scores, markdown_table, network_scores, BaselineOptions, LeadScore};
+use pbdl_weather::forecaster::{
+    train, Dataset, Lead, Normalizer, ResNetConfig, SampleSpec, TrainConfig, WeatherResNet,
+};
+use pbdl_weather::io::netcdf::{read_constants, write, write_constants, Flavour};
+use pbdl_weather::standin::{run as run_climate, ClimateConfig};
+use pbdl_weather::{Field, Forecast};
+use std::path::Path;
+
+/// First stored time of the truth run (2015-01-01) and of the climate run (1980-01-01).
+const TRUTH_START: i64 = 1_420_070_400;
+const CLIMATE_START: i64 = 315_532_800;
+const CONSTANTS: [&str; 3] = ["orography", "lsm", "lat2d"];
+/// Leads scored by `eval`, in 6-hour steps: 6 h, 1, 3 and 5 days.
+const EVAL_LEADS: [usize; 4] = [1, 4, 12, 20];
+/// Ridge of the linear regressions, relative to the mean diagonal of X^T X: chosen among 1e-6,
+/// 1e-3 and 1e-1 on an exploratory two-year run (seed 0, first year fit, second scored), not
+/// on the data `eval` scores.
+const LR_RIDGE: f64 = 1e-3;
+
+/// What `cargo xtask weather generate` was asked to do.
+pub struct GenerateArgs {
+    /// Output directory.
+    pub out: PathBuf,
+    /// Years of the unbiased "truth" run (train, valid, test: the last two years are valid and test).
+    pub truth_years: f64,
+    /// Years of the biased "climate model" run.
+    pub climate_years: f64,
+    /// Seed of the truth run (the climate run uses seed + 1000).
+    pub seed: u64,
+}
+
+fn write_run(dir: &Path, tag: &str, z: &Field, t: &Field) -> anyhow::Result<()> {
+    for f in [z, t] {
+        write(&dir.join(format!("{tag}_{}.nc", f.name)), &Forecast::Direct(f.clone()), Flavour::Nc4)?;
+    }
+    Ok(())
+}
+
+/// Runs the truth and the biased climate model, writes `truth_{z,t}.nc`, `climate_{z,t}.nc`,
+/// `constants.nc` and maps of the first truth fields.
+pub fn generate(args: GenerateArgs) -> anyhow::Result<()> {
+    std::fs::create_dir_all(&args.out)?;
+    for (tag, cfg, start, years) in [
+        ("truth", ClimateConfig { seed: args.seed, ..Default::default() }, TRUTH_START, args.truth_years),
+        ("climate", ClimateConfig::biased(args.seed + 1000), CLIMATE_START, args.climate_years),
+    ] {
+        let t0 = std::time::Instant::now();
+        let progress = Progress::new(1000);
+        let run = run_climate(&cfg, start, 100.0, years * 365.0, |f| progress.update((f * 1000.0) as u64, 0.0))?;
+        progress.finish();
+        write_run(&args.out, tag, &run.z, &run.t)?;
+        if tag == "truth" {
+            write_constants(&args.out.join("constants.nc"), &run.z.grid, &run.constants, Flavour::Nc4)?;
+            let (h, w) = (run.z.grid.n_lat(), run.z.grid.n_lon());
+            for f in [&run.z, &run.t] {
+                let v = f.values.to_f64();
+                let style = pbdl_core::viz::FieldStyle { upscale: Some(8), ..Default::default() };
+                pbdl_core::viz::field_to_png(args.out.join(format!("map_{}.png", f.name)), &v[..h * w], h, w, &style)?;
+            }
+        }
+        println!("{tag}: {years} years ({} fields of z and t) in {:.1} s", run.z.n_time(), t0.elapsed().as_secs_f64());
+    }
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// The `z` and `t` of a run plus the constants, as one dataset.
+fn load(dir: &Path, tag: &str) -> anyhow::Result<Dataset> {
+    let read = |var: &str| -> anyhow::Result<Field> {
+        let sel = Selection { var: Some(var.into()), ..Default::default() };
+        Ok(read_truth(&dir.join(format!("{tag}_{var}.nc")), &sel)?)
+    };
+    let constants = read_constants(&dir.join("constants.nc"), &CONSTANTS)?;
+    Ok(Dataset::from_fields(&[read("z")?, read("t")?], constants)?)
+}
+
+/// The time indices `[a, b)` of a dataset as its own dataset.
+fn slice(d: &Dataset, a: usize, b: usize) -> Dataset {
+    let plane = d.grid.n_lat() * d.grid.n_lon() * d.variables.len();
+    Dataset { times: d.times[a..b].to_vec(), values: d.values[a * plane..b * plane].to_vec(), ..d.clone() }
+}
+
+/// Truth splits: all but the last two years for training, then one year each for validation and test.
+fn truth_splits(d: &Dataset) -> anyhow::Result<(Dataset, Dataset, Dataset)> {
+    let year = (365.0 * 24.0 / d.step_hours).round() as usize;
+    anyhow::ensure!(
+        d.len() >= 3 * year,
+        "the truth run has {} times; generate at least 3 years (--truth-years 3)",
+        d.len()
+    );
+    let n = d.len();
+    Ok((slice(d, 0, n - 2 * year), slice(d, n - 2 * year, n - year), slice(d, n - year, n)))
+}
+
+fn spec() -> SampleSpec {
+    // z and t at t, t-6h, t-12h; any lead from 6 h to 5 days as an input channel.
+    SampleSpec { history: vec![0, 1, 2], lead: Lead::Continuous { min: 1, max: 20 }, targets: vec![0, 1] }
+}
+
+/// What `cargo xtask weather train` was asked to do.
+pub struct TrainArgs {
+    /// Data directory of `generate`.
+    pub data: PathBuf,
+    /// Run directory (checkpoints, summary).
+    pub out: PathBuf,
+    /// `climate` (pretraining) or `truth`.
+    pub source: String,
+    /// A run directory whose best weights start this run (fine-tuning).
+    pub init: Option<PathBuf>,
+    /// Most epochs.
+    pub epochs: usize,
+    /// Updates per epoch.
+    pub steps_per_epoch: usize,
+    /// Learning rate.
+    pub lr: f64,
+    /// Width and residual blocks of the ResNet.
+    pub width: usize,
+    /// Residual blocks.
+    pub blocks: usize,
+    /// Only this many truth training years (the latest ones), to mimic a short record.
+    pub truth_train_years: Option<f64>,
+    /// Seed.
+    pub seed: u64,
+}
+
+/// Trains the CPU-sized ResNet on the climate run or the truth's training years, validating on
+/// the truth's validation year; normalisation always from the truth's training years.
+pub fn train_cmd(args: TrainArgs) -> anyhow::Result<()> {
+    let truth = load(&args.data, "truth")?;
+    let (mut tr, va, _) = truth_splits(&truth)?;
+    if let Some(years) = args.truth_train_years {
+        let n = ((years * 365.0 * 24.0 / tr.step_hours).round() as usize).min(tr.len());
+        tr = slice(&tr, tr.len() - n, tr.len());
+    }
+    let norm = Normalizer::fit(&tr);
+    let source = match args.source.as_str() {
+        "truth" => tr,
+        "climate" => load(&args.data, "climate")?,
+        other => anyhow::bail!("--source must be climate or truth, not {other}"),
+    };
+    let spec = spec();
+    let cfg = ResNetConfig {
+        width: args.width,
+        blocks: args.blocks,
+        ..ResNetConfig::cpu_size(spec.in_channels(2, CONSTANTS.len()), 2)
+    };
+    let varmap = VarMap::new();
+    let net = WeatherResNet::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
+    pbdl_nets::seeded_init(&varmap, args.seed)?;
+    if let Some(init) = &args.init {
+        pbdl_core::io::load_varmap(init.join("best"), &varmap)?;
+        println!("starting from {}", init.join("best").display());
+    }
+    let tc = TrainConfig {
+        lr: args.lr,
+        max_epochs: args.epochs,
+        steps_per_epoch: Some(args.steps_per_epoch),
+        seed: args.seed,
+        dir: Some(args.out.clone()),
+        ..Default::default()
+    };
+    let t0 = std::time::Instant::now();
+    let state = train(&net, &varmap, &source, &va, &norm, &spec, &tc)?;
+    for r in &state.history {
+        println!("epoch {:>3}: train {:.4}  valid {:.4}  lr {:.1e}", r.epoch, r.train_loss, r.valid_loss, r.lr);
+    }
+    let summary = serde_json::json!({
+        "source": args.source, "init": args.init, "net": cfg, "train": tc, "normalizer": norm,
+        "truth_train_times": source.len(), "best_epoch": state.best_epoch, "best_valid": state.best_valid,
+        "stopped_early": state.stopped_early, "seconds": t0.elapsed().as_secs_f64(), "history": state.history,
+    });
+    pbdl_core::io::write_atomic(args.out.join("summary.json"), |w| {
+        std::io::Write::write_all(w, serde_json::to_string_pretty(&summary).unwrap_or_default().as_bytes())
+    })?;
+    println!(
+        "best epoch {} (valid {:.4}) after {:.0} s; wrote {}",
+        state.best_epoch,
+        state.best_valid,
+        t0.elapsed().as_secs_f64(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// What `cargo xtask weather eval` was asked to do.
+pub struct EvalArgs {
+    /// Data directory of `generate`.
+    pub data: PathBuf,
+    /// Run directories to score (their `best` weights, the net config in `summary.json`).
+    pub runs: Vec<PathBuf>,
+    /// Output directory.
+    pub out: PathBuf,
+}
+
+/// Scores every baseline and every run on the truth's test year at 6 h, 1, 3 and 5 days;
+/// writes `scores.json` (one row per model, variable and lead), `report.md` and RMSE-vs-lead plots.
+pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
+    std::fs::create_dir_all(&args.out)?;
+    let truth = load(&args.data, "truth")?;
+    let (tr, _, te) = truth_splits(&truth)?;
+    let spec = spec();
+    let inits = spec.init_indices(&te);
+    let opts = BaselineOptions { leads: EVAL_LEADS.to_vec(), stride: 5, ridge: LR_RIDGE, weekly: true };
+    let mut scores: Vec<LeadScore> = Vec::new();
+    for var in 0..te.variables.len() {
+        scores.extend(baseline_scores(&tr, &te, var, &inits, &opts)?);
+    }
+    for run in &args.runs {
+        let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("summary.json"))?)?;
+        let cfg: ResNetConfig = serde_json::from_value(summary["net"].clone())?;
+        let norm: Normalizer = serde_json::from_value(summary["normalizer"].clone())?;
+        let varmap = VarMap::new();
+        let net = WeatherResNet::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
+        pbdl_core::io::load_varmap(run.join("best"), &varmap)?;
+        let name = format!("resnet_{}", run.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default());
+        scores.extend(network_scores(&name, &net, &te, &norm, &spec, &inits, &EVAL_LEADS)?);
+    }
+    let mut md = format!("# Stand-in WeatherBench: {} test forecasts, leads 6 h to 5 days\n\n", inits.len());
+    for var in &te.variables {
+        md.push_str(&markdown_table(&scores, var));
+        md.push('\n');
+        let mut models: Vec<String> = scores.iter().filter(|s| &s.variable == var).map(|s| s.model.clone()).collect();
+        models.dedup();
+        let mut series = Vec::new();
+        for m in models.iter().filter(|m| !m.contains("climatology")) {
+            let pts: Vec<&LeadScore> = scores.iter().filter(|s| &s.model == m && &s.variable == var).collect();
+            if !pts.is_empty() && !series.iter().any(|s: &pbdl_core::viz::Series| &s.name == m) {
+                series.push(pbdl_core::viz::Series::new(
+                    m.clone(),
+                    pts.iter().map(|s| s.lead_hours).collect(),
+                    pts.iter().map(|s| s.rmse).collect(),
+                ));
+            }
+        }
+        let style = pbdl_core::viz::PlotStyle {
+            title: format!("{var}: RMSE against lead time (stand-in test year)"),
+            x_label: "lead time [h]".into(),
+            y_label: "latitude-weighted RMSE".into(),
+            ..Default::default()
+        };
+        pbdl_core::viz::line_plot(args.out.join(format!("rmse_{var}.png")), &series, &style)?;
+        md.push_str(&format!("![RMSE {var}](rmse_{var}.png)\n\n"));
+    }
+    pbdl_core::io::write_atomic(args.out.join("scores.json"), |w| {
+        std::io::Write::write_all(w, serde_json::to_string_pretty(&scores).unwrap_or_default().as_bytes())
+    })?;
+    pbdl_core::io::write_atomic(args.out.join("report.md"), |w| std::io::Write::write_all(w, md.as_bytes()))?;
+    println!("{md}");
+    println!("wrote {}", args.out.display());
+    Ok(())
+}

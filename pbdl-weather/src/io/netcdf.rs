@@ -376,3 +376,62 @@ pub fn write(path: &Path, forecast: &Forecast, flavour: Flavour) -> Result<()> {
     pbdl_core::io::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
         .map_err(|e| Error::Io { file: path.to_path_buf(), source: std::io::Error::other(e.to_string()) })
 }
+
+/// Writes constant maps (`[lat, lon]` each, float32) with `lat`/`lon` coordinates, atomically,
+/// as WeatherBench's `constants` file.
+pub fn write_constants(
+    path: &Path,
+    grid: &LatLonGrid,
+    constants: &[(String, Vec<f32>)],
+    flavour: Flavour,
+) -> Result<()> {
+    use netcdf_writer::{NcAttrValue, NcFileBuilder, NcWriteFormat, NcWriteOptions};
+    let werr = |e: netcdf_writer::Error| Error::NetCdf { file: path.to_path_buf(), reason: e.to_string() };
+    let mut b = NcFileBuilder::new();
+    let mut dims = Vec::new();
+    for (dim, coords, units) in [("lat", &grid.lat, "degrees_north"), ("lon", &grid.lon, "degrees_east")] {
+        let d = b.add_dimension(dim, coords.len() as u64).map_err(werr)?;
+        let v = b.add_variable::<f64>(dim, &[d]).map_err(werr)?;
+        b.add_variable_attribute(v, "units", NcAttrValue::Chars(units.into())).map_err(werr)?;
+        b.write_variable(v, coords).map_err(werr)?;
+        dims.push(d);
+    }
+    for (name, values) in constants {
+        if values.len() != grid.n_lat() * grid.n_lon() {
+            return Err(Error::InvalidArgument(format!(
+                "constant '{name}' has {} values for a {}x{} grid",
+                values.len(),
+                grid.n_lat(),
+                grid.n_lon()
+            )));
+        }
+        let v = b.add_variable::<f32>(name.as_str(), &dims).map_err(werr)?;
+        b.write_variable(v, values).map_err(werr)?;
+    }
+    let format = match flavour {
+        Flavour::Classic => NcWriteFormat::AutoClassic,
+        Flavour::Nc4 => NcWriteFormat::Nc4,
+    };
+    let (_, bytes) = b.to_vec(NcWriteOptions { format }).map_err(werr)?;
+    pbdl_core::io::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
+        .map_err(|e| Error::Io { file: path.to_path_buf(), source: std::io::Error::other(e.to_string()) })
+}
+
+/// Reads the named constant maps (`[lat, lon]`) of a constants file as float32.
+pub fn read_constants(path: &Path, names: &[&str]) -> Result<Vec<(String, Vec<f32>)>> {
+    names
+        .iter()
+        .map(|&name| {
+            let sel = Selection { var: Some(name.into()), ..Default::default() };
+            match read(path, &sel)? {
+                Forecast::Direct(f) => {
+                    f.require_finite()?;
+                    Ok((name.to_string(), f.values.to_f64().into_iter().map(|x| x as f32).collect()))
+                }
+                Forecast::ByLead(_) => {
+                    Err(Error::InvalidArgument(format!("{}: constant '{name}' has a lead time", path.display())))
+                }
+            }
+        })
+        .collect()
+}

@@ -8,10 +8,14 @@
 //!   vorticity equation it is an exact solution moving eastward without change of shape at
 //!   `nu = (R (3 + R) omega - 2 Omega) / ((1 + R)(2 + R))` rad/s (Haurwitz 1940); for the shallow
 //!   water equations it is not an exact solution, the pattern is only approximately steady and
-//!   moves at nearly that speed, so [`test6_height`] is a reference, not the truth.
+//!   moves at nearly that speed, so [`test6_height`] is a reference, not the truth. Williamson
+//!   et al. measure test 6 against a high-resolution run instead; [`truncate_spectral`] and
+//!   [`synthesis_truncated`] evaluate such a run's field exactly at a coarser run's grid points.
 
 use super::gauss::GaussianGrid;
+use super::legendre::SpectralLayout;
 use super::model::Planet;
+use super::transform::SpectralTransform;
 use super::Complex;
 use crate::error::{Error, Result};
 
@@ -147,6 +151,29 @@ pub fn error_norms(grid: &GaussianGrid, h: &[f64], h_ref: &[f64]) -> Result<Erro
         return Err(Error::InvalidArgument("reference field is zero or fields are not finite".into()));
     }
     Ok(ErrorNorms { l1: e1 / r1, l2: (e2 / r2).sqrt(), linf: emax / rmax })
+}
+
+/// Truncates spectral coefficients of `T_from` (the [`SpectralLayout`] order: by `m`, then `n`)
+/// to `T_to`, `to <= from`: keeps the `X_n^m` with `n <= to` (hence `m <= to`), drops the rest.
+/// The normalisation of `P_n^m` does not depend on the truncation, so the kept coefficients are
+/// those of the same harmonics.
+pub fn truncate_spectral(spec: &[Complex], from: usize, to: usize) -> Result<Vec<Complex>> {
+    if to > from {
+        return Err(Error::InvalidArgument(format!("cannot truncate T{from} to the larger T{to}")));
+    }
+    let (lf, lt) = (SpectralLayout::new(from), SpectralLayout::new(to));
+    if spec.len() != lf.len() {
+        return Err(Error::InvalidArgument(format!("{} spectral coefficients; T{from} has {}", spec.len(), lf.len())));
+    }
+    Ok(lt.modes().map(|(m, n)| spec[lf.index(m, n)]).collect())
+}
+
+/// Evaluates a `T_from` spectral field (`from >= target.truncation()`) truncated to the target
+/// transform's `T_M` at the target's Gaussian grid points (`[lat][lon]`). This is spectral
+/// interpolation of a high-resolution reference onto a coarse grid: exact for the truncated
+/// field, with no grid interpolation error, and the natural reference for a `T_M` run.
+pub fn synthesis_truncated(spec: &[Complex], from: usize, target: &SpectralTransform) -> Result<Vec<f64>> {
+    target.synthesis(&truncate_spectral(spec, from, target.truncation())?)
 }
 
 /// Phase (radians, in `(-pi, pi]`) of zonal wavenumber `k` of one latitude row on equally
