@@ -219,15 +219,27 @@ fn mountains(cfg: &ClimateConfig, grid: &GaussianGrid) -> Vec<f64> {
     out
 }
 
-/// Runs the stand-in climate for `spinup_days`, then stores `days` of output starting at
-/// `start` (seconds since 1970). `progress` is called with the fraction done.
-pub fn run(
+/// One stored time of a run: `z` and `t` on the WeatherBench grid.
+pub struct Output<'a> {
+    /// The time.
+    pub time: Seconds,
+    /// Z500-like field `[lat, lon]`.
+    pub z: &'a [f64],
+    /// T850-like field `[lat, lon]`.
+    pub t: &'a [f64],
+}
+
+/// Runs the stand-in climate for `spinup_days`, then `days` more, handing each stored time to
+/// `on_output` (which may stop the run with an error) without keeping it: a long run needs no
+/// memory for its output. Returns the constant maps. `progress` gets the fraction done.
+pub fn run_streaming(
     cfg: &ClimateConfig,
     start: Seconds,
     spinup_days: f64,
     days: f64,
     mut progress: impl FnMut(f64),
-) -> Result<StandIn> {
+    mut on_output: impl FnMut(Output) -> Result<()>,
+) -> Result<Vec<(String, Vec<f32>)>> {
     cfg.check()?;
     let mut params = ModelParams::new(cfg.truncation, cfg.n_lat, cfg.dt);
     params.drag = 1.0 / (cfg.drag_days * 86_400.0);
@@ -261,10 +273,6 @@ pub fn run(
     let update_every = (6.0 * 3600.0 / cfg.dt).round().max(1.0) as usize;
     let r = (-(update_every as f64 * cfg.dt) / (cfg.noise_days * 86_400.0)).exp();
     let sigma = cfg.noise_height / (anomalies.len() as f64 / 4.0).sqrt();
-    let wb = LatLonGrid::weatherbench(cfg.n_lat);
-    let (mut z, mut t) =
-        (Vec::with_capacity(n_out * wb.n_lat() * wb.n_lon()), Vec::with_capacity(n_out * wb.n_lat() * wb.n_lon()));
-    let mut times = Vec::with_capacity(n_out);
     for step in 0..total {
         if step % update_every == 0 {
             for a in &mut anomalies {
@@ -285,21 +293,73 @@ pub fn run(
                     step as f64 * cfg.dt / 86_400.0
                 )));
             }
-            z.extend(zw.iter().map(|&x| x as f32));
-            t.extend(tw.iter().map(|&x| x as f32));
-            times.push(start + ((step - spinup_steps) as f64 * cfg.dt).round() as Seconds);
+            let time = start + ((step - spinup_steps) as f64 * cfg.dt).round() as Seconds;
+            on_output(Output { time, z: &zw, t: &tw })?;
         }
         model.step();
     }
     progress(1.0);
+    let wb = LatLonGrid::weatherbench(cfg.n_lat);
     let hs_wb = to_weatherbench(&grid, &hs)?;
     let lat2d: Vec<f32> = wb.lat.iter().flat_map(|&l| std::iter::repeat_n(l as f32, wb.n_lon())).collect();
-    let constants = vec![
+    Ok(vec![
         ("orography".to_string(), hs_wb.iter().map(|&h| h as f32).collect()),
         ("lsm".to_string(), hs_wb.iter().map(|&h| if h > 100.0 { 1.0 } else { 0.0 }).collect()),
         ("lat2d".to_string(), lat2d),
-    ];
+    ])
+}
+
+/// Runs the stand-in climate for `spinup_days`, then stores `days` of output starting at
+/// `start` (seconds since 1970). `progress` is called with the fraction done.
+pub fn run(
+    cfg: &ClimateConfig,
+    start: Seconds,
+    spinup_days: f64,
+    days: f64,
+    progress: impl FnMut(f64),
+) -> Result<StandIn> {
+    let n_out = (days * 24.0 / cfg.output_hours.max(1) as f64).round() as usize;
+    let wb = LatLonGrid::weatherbench(cfg.n_lat);
+    let plane = wb.n_lat() * wb.n_lon();
+    let (mut z, mut t, mut times) =
+        (Vec::with_capacity(n_out * plane), Vec::with_capacity(n_out * plane), Vec::with_capacity(n_out));
+    let constants = run_streaming(cfg, start, spinup_days, days, progress, |o| {
+        z.extend(o.z.iter().map(|&x| x as f32));
+        t.extend(o.t.iter().map(|&x| x as f32));
+        times.push(o.time);
+        Ok(())
+    })?;
     let z = Field::new("z", Some(times.clone()), wb.clone(), Values::F32(z))?;
     let t = Field::new("t", Some(times), wb, Values::F32(t))?;
     Ok(StandIn { z, t, constants })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stand_in_climate_is_finite_plausible_and_unsteady() {
+        // 20 days of spin-up and 30 stored days from 2017-01-01.
+        let run = run(&ClimateConfig::default(), 1_483_228_800, 20.0, 30.0, |_| {}).unwrap();
+        assert_eq!(run.z.n_time(), 120);
+        let (z, t) = (run.z.values.to_f64(), run.t.values.to_f64());
+        let range = |v: &[f64]| v.iter().fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+        let (zmin, zmax) = range(&z);
+        let (tmin, tmax) = range(&t);
+        assert!(zmin > 3.0e4 && zmax < 6.5e4, "z in {zmin}..{zmax}");
+        assert!(tmin > 200.0 && tmax < 300.0, "t in {tmin}..{tmax}");
+        // Day-to-day change of z in the northern mid-latitudes (rows 20..28): weather, not a
+        // steady state.
+        let plane = 32 * 64;
+        let mut change = 0.0;
+        for d in 1..30 {
+            for q in 20 * 64..28 * 64 {
+                change += (z[4 * d * plane + q] - z[4 * (d - 1) * plane + q]).powi(2);
+            }
+        }
+        let rms = (change / (29.0 * 8.0 * 64.0)).sqrt();
+        assert!(rms > 50.0, "day-to-day rms change of z {rms} m^2/s^2");
+        assert_eq!(run.constants.len(), 3);
+    }
 }

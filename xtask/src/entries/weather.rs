@@ -5,13 +5,16 @@
 //!   `bench/peers/weather_run.sh` wrote with xarray, where present, else pbdl's own). The peer
 //!   script times the official score.py and xarray on the same sizes; `cargo xtask bench`
 //!   merges its rows.
+//! * stress `standin_years`: 50 simulated years of the stand-in climate in one run (2 with
+//!   `--quick`), checking finiteness and physical bounds at every stored time.
 
 use crate::bench_schema::{median_seconds, BenchRow};
-use crate::registry::{CrateTasks, Entry, TaskContext, TaskResult};
+use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult};
 use pbdl_weather::field::Values;
 use pbdl_weather::io::netcdf::{write, Flavour};
 use pbdl_weather::io::{read_truth, Selection};
 use pbdl_weather::score::{score, Metric};
+use pbdl_weather::standin::{run_streaming, ClimateConfig};
 use pbdl_weather::{Field, Forecast, LatLonGrid};
 use std::path::PathBuf;
 
@@ -25,7 +28,11 @@ pub fn tasks() -> CrateTasks {
             about: "RMSE/MAE/ACC of a year of hourly 32x64 float32 fields; reading the year from NetCDF-4 and classic files.",
             run: bench_score_year,
         }],
-        stress: vec![],
+        stress: vec![Entry {
+            name: "standin_years",
+            about: "50 simulated years of the stand-in climate (2 with --quick): finite and inside physical bounds.",
+            run: stress_standin_years,
+        }],
     }
 }
 
@@ -89,4 +96,49 @@ fn bench_score_year(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         rows.push(r);
     }
     Ok(rows)
+}
+
+/// 50 simulated years of the stand-in climate (2 with `--quick`) in one continuous run: the
+/// fields stay finite and inside physical bounds.
+fn stress_standin_years(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    let years = if ctx.quick { 2.0 } else { 50.0 };
+    let (mut outputs, mut out_of_bounds, mut z_range, mut t_range) =
+        (0u64, None, (f64::MAX, f64::MIN), (f64::MAX, f64::MIN));
+    let result = run_streaming(
+        &ClimateConfig::default(),
+        0,
+        100.0,
+        years * 365.0,
+        |_| {},
+        |o| {
+            for &z in o.z {
+                z_range = (z_range.0.min(z), z_range.1.max(z));
+            }
+            for &t in o.t {
+                t_range = (t_range.0.min(t), t_range.1.max(t));
+            }
+            // Plausible Z500 (m^2/s^2) and T850 (K) ranges; a blow-up leaves them long before NaN.
+            if out_of_bounds.is_none()
+                && (z_range.0 < 2.0e4 || z_range.1 > 8.0e4 || t_range.0 < 150.0 || t_range.1 > 350.0)
+            {
+                out_of_bounds = Some(outputs);
+            }
+            outputs += 1;
+            Ok(())
+        },
+    );
+    let blew_up = result.as_ref().err().map(|e| e.to_string());
+    Ok(vec![StressCheck {
+        invariant: format!(
+            "stand-in climate, {years} years in one run: finite, z in 2e4..8e4 m^2/s^2, t in 150..350 K"
+        ),
+        passed: blew_up.is_none() && out_of_bounds.is_none(),
+        first_broken_step: out_of_bounds.or(blew_up.as_ref().map(|_| outputs)),
+        detail: blew_up.unwrap_or_else(|| {
+            format!(
+                "{outputs} 6-hourly outputs; z {:.0}..{:.0}, t {:.1}..{:.1}",
+                z_range.0, z_range.1, t_range.0, t_range.1
+            )
+        }),
+    }])
 }
