@@ -1,5 +1,7 @@
 //! `pbdl-weather`'s entries for `cargo xtask` (see [`crate::registry`]).
 //!
+//! * tour `standin_forecast`: 120 days of the stand-in climate, baselines and a small ResNet
+//!   trained for about a minute; RMSE against lead time and maps of truth, forecast and error.
 //! * bench `score_year`: WeatherBench's RMSE, MAE and ACC of a year of hourly 32x64 float32
 //!   fields held in memory, and reading that year from NetCDF-4 and classic files (the files
 //!   `bench/peers/weather_run.sh` wrote with xarray, where present, else pbdl's own). The peer
@@ -9,7 +11,7 @@
 //!   `--quick`), checking finiteness and physical bounds at every stored time.
 
 use crate::bench_schema::{median_seconds, BenchRow};
-use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult};
+use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
 use pbdl_weather::field::Values;
 use pbdl_weather::io::netcdf::{write, Flavour};
 use pbdl_weather::io::{read_truth, Selection};
@@ -22,7 +24,11 @@ use std::path::PathBuf;
 pub fn tasks() -> CrateTasks {
     CrateTasks {
         crate_name: "weather",
-        tour: vec![],
+        tour: vec![Entry {
+            name: "standin_forecast",
+            about: "Stand-in climate (120 days), baselines and a small ResNet: RMSE against lead time, maps of truth, forecast and error.",
+            run: tour_standin_forecast,
+        }],
         bench: vec![Entry {
             name: "score_year",
             about: "RMSE/MAE/ACC of a year of hourly 32x64 float32 fields; reading the year from NetCDF-4 and classic files.",
@@ -141,4 +147,99 @@ fn stress_standin_years(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             )
         }),
     }])
+}
+
+/// The stand-in climate for 120 days, baselines and a small ResNet (continuous lead, 6 h to 3
+/// days) trained for a minute on its first 80 days and scored on the last 30: RMSE against lead
+/// time (PNG), maps of truth, forecast and error at a one-day lead.
+fn tour_standin_forecast(ctx: &TaskContext) -> TaskResult<TourOutcome> {
+    use candle_core::{DType, Device};
+    use candle_nn::{VarBuilder, VarMap};
+    use pbdl_weather::evaluation::{baseline_scores, markdown_table, network_scores, BaselineOptions};
+    use pbdl_weather::forecaster::{
+        predict, train, Dataset, Lead, Normalizer, ResNetConfig, SampleSpec, TrainConfig, WeatherResNet,
+    };
+    let t0 = std::time::Instant::now();
+    let climate = pbdl_weather::standin::run(&ClimateConfig::default(), 1_483_228_800, 100.0, 120.0, |_| {})?;
+    let gen_seconds = t0.elapsed().as_secs_f64();
+    let all = Dataset::from_fields(&[climate.z.clone(), climate.t.clone()], climate.constants.clone())?;
+    let cut = |a: usize, b: usize| {
+        let plane = 2 * 32 * 64;
+        Dataset { times: all.times[a..b].to_vec(), values: all.values[a * plane..b * plane].to_vec(), ..all.clone() }
+    };
+    let (tr, va, te) = (cut(0, 320), cut(320, 360), cut(360, 480));
+    let norm = Normalizer::fit(&tr);
+    let spec = SampleSpec { history: vec![0, 1, 2], lead: Lead::Continuous { min: 1, max: 12 }, targets: vec![0, 1] };
+    let varmap = VarMap::new();
+    let cfg = ResNetConfig { width: 16, blocks: 2, dropout: 0.0, ..ResNetConfig::cpu_size(spec.in_channels(2, 3), 2) };
+    let net = WeatherResNet::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
+    pbdl_nets::seeded_init(&varmap, 0)?;
+    let steps = if ctx.quick { 10 } else { 40 };
+    let tc = TrainConfig {
+        lr: 2e-3,
+        max_epochs: 4,
+        steps_per_epoch: Some(steps),
+        batch: 16,
+        progress: false,
+        ..Default::default()
+    };
+    let t1 = std::time::Instant::now();
+    train(&net, &varmap, &tr, &va, &norm, &spec, &tc)?;
+    let train_seconds = t1.elapsed().as_secs_f64();
+    let leads = [1, 4, 12];
+    let inits = spec.init_indices(&te);
+    let opts = BaselineOptions { leads: leads.to_vec(), stride: 1, ridge: 1e-3, weekly: false };
+    let mut scores = baseline_scores(&tr, &te, 0, &inits, &opts)?;
+    scores.extend(network_scores("resnet", &net, &te, &norm, &spec, &inits, &leads)?);
+    let mut series = Vec::new();
+    for m in ["persistence", "linear_regression_direct", "linear_regression_iterative", "resnet"] {
+        let pts: Vec<_> = scores.iter().filter(|s| s.model == m && s.variable == "z").collect();
+        series.push(pbdl_core::viz::Series::new(
+            m,
+            pts.iter().map(|s| s.lead_hours).collect(),
+            pts.iter().map(|s| s.rmse).collect(),
+        ));
+    }
+    let style = pbdl_core::viz::PlotStyle {
+        title: "stand-in z: RMSE against lead time".into(),
+        x_label: "lead time [h]".into(),
+        y_label: "latitude-weighted RMSE [m^2/s^2]".into(),
+        ..Default::default()
+    };
+    pbdl_core::viz::line_plot(ctx.out_dir.join("weather_rmse_z.png"), &series, &style)?;
+    // Maps at a one-day lead from the first test initialisation.
+    let fc = predict(&net, &te, &norm, &spec, &inits[..1], 4, 1)?;
+    let forecast = fc[0].values.to_f64();
+    let truth: Vec<f64> = te.map(inits[0] + 4, 0).iter().map(|&x| x as f64).collect();
+    let error: Vec<f64> = forecast.iter().zip(&truth).map(|(f, o)| f - o).collect();
+    let map_style = pbdl_core::viz::FieldStyle { upscale: Some(6), ..Default::default() };
+    pbdl_core::viz::field_to_png(ctx.out_dir.join("weather_truth_z.png"), &truth, 32, 64, &map_style)?;
+    pbdl_core::viz::field_to_png(ctx.out_dir.join("weather_forecast_z.png"), &forecast, 32, 64, &map_style)?;
+    let err_style = pbdl_core::viz::FieldStyle { upscale: Some(6), ..pbdl_core::viz::FieldStyle::diverging() };
+    pbdl_core::viz::field_to_png(ctx.out_dir.join("weather_error_z.png"), &error, 32, 64, &err_style)?;
+    let get = |m: &str, lead: f64| {
+        scores.iter().find(|s| s.model == m && s.lead_hours == lead && s.variable == "z").map_or(f64::NAN, |s| s.rmse)
+    };
+    let markdown = format!(
+        "## weather: stand-in climate and ResNet\n\n120 days of the stand-in climate ({gen_seconds:.1} s), a width-16 ResNet trained for {train_seconds:.0} s on the first 80 days, scored on the last 30 (z, latitude-weighted RMSE, m^2/s^2):\n\n{}\n![RMSE](weather_rmse_z.png)\n\nOne-day forecast from the first test time: truth, forecast, error\n\n![truth](weather_truth_z.png) ![forecast](weather_forecast_z.png) ![error](weather_error_z.png)\n",
+        markdown_table(&scores, "z")
+    );
+    Ok(TourOutcome {
+        rows: vec![TourRow {
+            item: "stand-in climate 120 d + ResNet, z at 1 day".into(),
+            seconds: gen_seconds + train_seconds,
+            error: Some(get("resnet", 24.0)),
+            error_kind: "RMSE z 1 day".into(),
+            note: format!(
+                "LR {:.0}, persistence {:.0}",
+                get("linear_regression_direct", 24.0),
+                get("persistence", 24.0)
+            ),
+        }],
+        files: ["weather_rmse_z.png", "weather_truth_z.png", "weather_forecast_z.png", "weather_error_z.png"]
+            .iter()
+            .map(PathBuf::from)
+            .collect(),
+        markdown,
+    })
 }
