@@ -4,7 +4,7 @@
 use crate::baselines::{persistence, Climatology, LinearRegression, WeeklyClimatology};
 use crate::error::Result;
 use crate::field::{Field, LeadForecast, Values};
-use crate::forecaster::{predict, Dataset, Normalizer, SampleSpec, WeatherResNet};
+use crate::forecaster::{predict, Dataset, Forecaster, Normalizer, SampleSpec};
 use crate::score::{score, score_by_lead, Metric};
 use serde::{Deserialize, Serialize};
 
@@ -122,7 +122,7 @@ pub fn baseline_scores(
 /// The forecaster's scores at each lead (in steps) from `inits`, for each target variable.
 pub fn network_scores(
     model: &str,
-    net: &WeatherResNet,
+    net: &dyn Forecaster,
     test: &Dataset,
     norm: &Normalizer,
     spec: &SampleSpec,

@@ -9,7 +9,8 @@
 use crate::error::{Error, Result};
 use crate::field::LeadForecast;
 use crate::forecaster::data::{Dataset, Lead, Normalizer, SampleSpec};
-use crate::forecaster::model::{core_err, WeatherResNet};
+use crate::forecaster::model::core_err;
+use crate::forecaster::Forecaster;
 use crate::grid::lat_weights;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{Optimizer, VarMap};
@@ -135,7 +136,7 @@ fn eval_leads(spec: &SampleSpec, n: usize) -> Vec<usize> {
 
 /// Mean latitude-weighted MSE of the network (evaluation mode) over all samples of `data`.
 pub fn evaluate(
-    net: &WeatherResNet,
+    net: &dyn Forecaster,
     data: &Dataset,
     norm: &Normalizer,
     spec: &SampleSpec,
@@ -178,7 +179,7 @@ fn restore(varmap: &VarMap, snap: &HashMap<String, Tensor>) -> Result<()> {
 /// epoch; returns the final state (history, best epoch). The best weights are in `varmap`
 /// afterwards.
 pub fn train(
-    net: &WeatherResNet,
+    net: &dyn Forecaster,
     varmap: &VarMap,
     train: &Dataset,
     valid: &Dataset,
@@ -281,7 +282,7 @@ pub fn train(
             let meta = CheckpointMeta {
                 step: state.epochs_done as u64,
                 seed: Some(cfg.seed),
-                config: serde_json::json!({ "state": state, "train": cfg, "spec": spec, "normalizer": norm, "net": net.config() }),
+                config: serde_json::json!({ "state": state, "train": cfg, "spec": spec, "normalizer": norm, "net": net.describe() }),
             };
             save_varmap(&p, varmap, &meta).map_err(core_err)?;
         }
@@ -296,7 +297,7 @@ pub fn train(
 /// Forecasts at `lead` steps from each of `inits` (evaluation mode, in batches), one
 /// [`LeadForecast`] per target variable in physical units.
 pub fn predict(
-    net: &WeatherResNet,
+    net: &dyn Forecaster,
     data: &Dataset,
     norm: &Normalizer,
     spec: &SampleSpec,
