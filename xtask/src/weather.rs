@@ -259,7 +259,10 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
         pbdl_core::io::load_varmap(run.join("best"), &varmap)?;
         let name = format!("resnet_{}", run.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default());
         scores.extend(network_scores(&name, &net, &te, &norm, &spec, &inits, &EVAL_LEADS)?);
+        write_lead_forecast(&args.out.join(format!("forecast_{name}_z.nc")), &net, &te, &norm, &spec, &inits)?;
     }
+    // The test year's truth, so that `weather score` can re-score the forecast files.
+    write(&args.out.join("truth_test_z.nc"), &Forecast::Direct(te.field(0)), Flavour::Nc4)?;
     let mut md = format!("# Stand-in WeatherBench: {} test forecasts, leads 6 h to 5 days\n\n", inits.len());
     for var in &te.variables {
         md.push_str(&markdown_table(&scores, var));
@@ -292,5 +295,32 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
     pbdl_core::io::write_atomic(args.out.join("report.md"), |w| std::io::Write::write_all(w, md.as_bytes()))?;
     println!("{md}");
     println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// Writes the network's z forecasts at every evaluation lead as one NetCDF-4 file
+/// `[lead_time, time, lat, lon]` (time = initialisation), scorable by `weather score`.
+fn write_lead_forecast(
+    path: &Path,
+    net: &WeatherResNet,
+    te: &Dataset,
+    norm: &Normalizer,
+    spec: &SampleSpec,
+    inits: &[usize],
+) -> anyhow::Result<()> {
+    let mut values = Vec::new();
+    let mut first = None;
+    for &lead in &EVAL_LEADS {
+        let fc = pbdl_weather::forecaster::predict(net, te, norm, spec, inits, lead, 32)?.remove(0);
+        values.extend(fc.values.to_f64().into_iter().map(|x| x as f32));
+        first.get_or_insert(fc);
+    }
+    let Some(first) = first else { return Ok(()) };
+    let all = pbdl_weather::LeadForecast {
+        lead_hours: EVAL_LEADS.iter().map(|&l| l as f64 * te.step_hours).collect(),
+        values: pbdl_weather::field::Values::F32(values),
+        ..first
+    };
+    write(path, &Forecast::ByLead(all), Flavour::Nc4)?;
     Ok(())
 }
