@@ -130,6 +130,18 @@ def main():
 
     cases.append(("weather_resnet_train_step", "b4_c117_w128_blocks19_32x64", weather))
 
+    # pbdl-weather's CPU-sized forecaster (stand-in experiment): 10 inputs, width 32, 4 blocks, batch 32.
+    small = WeatherResNet(c_in=10, width=32, blocks=4, c_out=2)
+    opt_small = torch.optim.Adam(small.parameters(), lr=1e-3)
+    xs_, ys_ = torch.randn(32, 10, 32, 64), torch.randn(32, 2, 32, 64)
+
+    def weather_cpu():
+        opt_small.zero_grad(set_to_none=True)
+        F.mse_loss(small(xs_), ys_).backward()
+        opt_small.step()
+
+    cases.append(("weather_cpu_resnet_train_step", "b32_c10_w32_blocks4_32x64", weather_cpu))
+
     gen = TecoGenerator()
     xg, yg = torch.randn(4, 51, 32, 32), torch.randn(4, 3, 128, 128)
 

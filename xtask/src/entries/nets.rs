@@ -3,7 +3,8 @@
 //! `bench/peers/nets_run.sh` (`target/pbdl/bench/nets_peers.json`), which builds the same
 //! networks in PyTorch from the same descriptions; `cargo xtask bench nets` merges them.
 //!
-//! * `training_steps`: the WeatherBench ResNet training step (Rasp & Thuerey 2021: periodic
+//! * `training_steps`: the WeatherBench ResNet training step (and pbdl-weather's CPU-sized
+//!   forecaster at batch 32) (Rasp & Thuerey 2021: periodic
 //!   7x7 conv 117 -> 128, 19 residual blocks of two periodic 3x3 conv -> LeakyReLU 0.3 ->
 //!   BatchNorm units, periodic 3x3 conv -> 3; batch 4 on 32x64, MSE, Adam), a TecoGAN generator
 //!   forward + backward (51 channels at 32x32, 3x3 conv -> 64 + ReLU, 16 residual blocks, two
@@ -173,6 +174,25 @@ fn bench_training_steps(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
             Ok(())
         });
         rows.push(row("weather_resnet_train_step", "b4_c117_w128_blocks19_32x64", s, ctx.threads));
+    }
+
+    // pbdl-weather's CPU-sized forecaster as the stand-in experiment trains it (no dropout,
+    // as the peer): one Adam step at batch 32.
+    if selected("weather_cpu_resnet_train_step") {
+        use pbdl_weather::forecaster::{ResNetConfig, WeatherResNet as Forecaster};
+        let varmap = VarMap::new();
+        let cfg = ResNetConfig { width: 32, blocks: 4, dropout: 0.0, ..ResNetConfig::cpu_size(10, 2) };
+        let net = Forecaster::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
+        let trainable = pbdl_core::nn::batch_norm::trainable_vars(&varmap);
+        let mut opt = OptimizerConfig::Adam(AdamConfig { lr: 1e-3, ..Default::default() }).build(trainable)?;
+        let x = seed::randn((32, 10, 32, 64), 0.0, 1.0, DType::F32, &dev, 7)?;
+        let y = seed::randn((32, 2, 32, 64), 0.0, 1.0, DType::F32, &dev, 8)?;
+        let s = median_seconds(1, reps, || -> TaskResult<()> {
+            let loss = mse(&net.forward(&x, true, 0)?, &y)?;
+            candle_nn::Optimizer::backward_step(&mut opt, &loss)?;
+            Ok(())
+        });
+        rows.push(row("weather_cpu_resnet_train_step", "b32_c10_w32_blocks4_32x64", s, ctx.threads));
     }
 
     // TecoGAN generator: forward + backward.
