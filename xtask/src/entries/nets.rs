@@ -3,13 +3,13 @@
 //! `bench/peers/nets_run.sh` (`target/pbdl/bench/nets_peers.json`), which builds the same
 //! networks in PyTorch from the same descriptions; `cargo xtask bench nets` merges them.
 //!
-//! * `training_steps`: the WeatherBench ResNet training step (and pbdl-weather's CPU-sized
-//!   forecaster at batch 32) (Rasp & Thuerey 2021: periodic
+//! * `training_steps`: the WeatherBench ResNet training step (Rasp & Thuerey 2021: periodic
 //!   7x7 conv 117 -> 128, 19 residual blocks of two periodic 3x3 conv -> LeakyReLU 0.3 ->
 //!   BatchNorm units, periodic 3x3 conv -> 3; batch 4 on 32x64, MSE, Adam), a TecoGAN generator
 //!   forward + backward (51 channels at 32x32, 3x3 conv -> 64 + ReLU, 16 residual blocks, two
 //!   stride-2 transposed convs, 3x3 conv -> 3, plus bicubic x4 of the LR frame; batch 4) and an
-//!   LSTM over 6 latent vectors (batch 16, input = hidden = 256 and 1024) forward + backward.
+//!   LSTM over 6 latent vectors (batch 16, input = hidden = 256 and 1024) forward + backward;
+//!   pbdl-weather's CPU-sized forecaster (10 inputs, width 32, 4 blocks, batch 32) one Adam step.
 
 use crate::bench_schema::{median_seconds, BenchRow};
 use crate::registry::{CrateTasks, Entry, TaskContext, TaskResult};
