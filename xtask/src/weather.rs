@@ -264,7 +264,21 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
     // The test year's truth, so that `weather score` can re-score the forecast files.
     write(&args.out.join("truth_test_z.nc"), &Forecast::Direct(te.field(0)), Flavour::Nc4)?;
     let mut md = format!("# Stand-in WeatherBench: {} test forecasts, leads 6 h to 5 days\n\n", inits.len());
-    for var in &te.variables {
+    for (k, var) in te.variables.iter().enumerate() {
+        // The climatological standard deviation of the test year (pooled per-point variance
+        // about each point's time mean), the analytic RMSE of a climatology forecast.
+        let f = te.field(k);
+        let v = f.values.to_f64();
+        let plane = te.grid.n_lat() * te.grid.n_lon();
+        let mean = pbdl_weather::score::time_mean(&v, plane);
+        let w = pbdl_weather::grid::lat_weights(&te.grid.lat);
+        let n_lon = te.grid.n_lon();
+        let var_sum: f64 =
+            v.iter().enumerate().map(|(i, x)| w[(i % plane) / n_lon] * (x - mean[i % plane]).powi(2)).sum();
+        let sigma = (var_sum / v.len() as f64).sqrt();
+        md.push_str(&format!(
+            "{var}: latitude-weighted climatological standard deviation of the test year {sigma:.4}\n\n"
+        ));
         md.push_str(&markdown_table(&scores, var));
         md.push('\n');
         let mut models: Vec<String> = scores.iter().filter(|s| &s.variable == var).map(|s| s.model.clone()).collect();
