@@ -201,13 +201,18 @@ impl LinearRegression {
         }
         let v = init.values.to_f64();
         let n = init_times.len();
+        // All initial states at once: one matrix product [n, P + 1] x [P + 1, P] per step.
+        let w = Mat::<f64>::from_fn(p + 1, p, |r, c| self.coef[r * p + c]);
+        let mut state = Mat::<f64>::from_fn(n, p + 1, |i, c| if c == 0 { 1.0 } else { v[i * p + c - 1] });
         let mut values = vec![0.0; steps * n * p];
-        for i in 0..n {
-            let mut state = v[i * p..(i + 1) * p].to_vec();
-            for k in 0..steps {
-                state = self.apply(&state);
-                values[(k * n + i) * p..(k * n + i + 1) * p].copy_from_slice(&state);
+        for k in 0..steps {
+            let next = &state * &w;
+            for i in 0..n {
+                for c in 0..p {
+                    values[(k * n + i) * p + c] = next[(i, c)];
+                }
             }
+            state = Mat::<f64>::from_fn(n, p + 1, |i, c| if c == 0 { 1.0 } else { next[(i, c - 1)] });
         }
         Ok(LeadForecast {
             name: init.name.clone(),
