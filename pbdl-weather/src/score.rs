@@ -323,58 +323,62 @@ pub fn time_mean<O: Sample>(o: &[O], plane: usize) -> Vec<f64> {
 fn acc<F: Sample, O: Sample>(f: &[F], o: &[O], pairs: &[(usize, usize)], w: &[f64], n_lon: usize) -> f64 {
     let plane = w.len() * n_lon;
     let clim = time_mean(o, plane);
-    // Unweighted means of the anomalies over the common times, each skipping its own NaNs.
-    let means: Vec<[f64; 4]> = pairs
+    // One pass over the common times. Centring by the means m_f, m_o is applied afterwards by
+    // expanding the sums, e.g. sum w (f' - m_f)(o' - m_o) = sum w f'o' - m_o sum w f' - m_f
+    // sum w o' + m_f m_o sum w, each sum over the points where its own terms are not NaN (as
+    // xarray's skipna sums them separately).
+    let sums: Vec<[f64; 14]> = pairs
         .par_iter()
         .map(|&(i, j)| {
-            let mut s = [0.0; 4]; // sum f', count f', sum o', count o'
-            for p in 0..plane {
-                let fa = f[i * plane + p].get() - clim[p];
-                let oa = o[j * plane + p].get() - clim[p];
-                if !fa.is_nan() {
-                    s[0] += fa;
-                    s[1] += 1.0;
-                }
-                if !oa.is_nan() {
-                    s[2] += oa;
-                    s[3] += 1.0;
-                }
-            }
-            s
-        })
-        .collect();
-    let total = means.iter().fold([0.0; 4], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3]]);
-    let (mf, mo) = (total[0] / total[1], total[2] / total[3]);
-    let sums: Vec<[f64; 3]> = pairs
-        .par_iter()
-        .map(|&(i, j)| {
-            let mut s = [0.0; 3]; // sum w f'' o'', sum w f''^2, sum w o''^2
+            let (fp, op) = (&f[i * plane..(i + 1) * plane], &o[j * plane..(j + 1) * plane]);
+            let mut t = [0.0; 14];
             for (row, &wr) in w.iter().enumerate() {
-                let mut r = [0.0; 3];
-                for col in 0..n_lon {
-                    let p = row * n_lon + col;
-                    let fa = f[i * plane + p].get() - clim[p] - mf;
-                    let oa = o[j * plane + p].get() - clim[p] - mo;
-                    let fo = fa * oa;
-                    if !fo.is_nan() {
-                        r[0] += fo;
-                    }
-                    if !fa.is_nan() {
-                        r[1] += fa * fa;
-                    }
-                    if !oa.is_nan() {
-                        r[2] += oa * oa;
-                    }
+                // Per row: sum f', n_f, sum o', n_o (unweighted), then both-valid sums f'o', f',
+                // o', n and f-valid f'^2, f', n and o-valid o'^2, o', n (weighted below).
+                let mut r = [0.0; 14];
+                let cols = row * n_lon..(row + 1) * n_lon;
+                for ((a, b), c) in fp[cols.clone()].iter().zip(&op[cols.clone()]).zip(&clim[cols]) {
+                    let (fa, oa) = (a.get() - c, b.get() - c);
+                    let (fv, ov) = (!fa.is_nan(), !oa.is_nan());
+                    let (fz, oz) = (if fv { fa } else { 0.0 }, if ov { oa } else { 0.0 });
+                    let both = fv && ov;
+                    let (fb, ob) = (if both { fz } else { 0.0 }, if both { oz } else { 0.0 });
+                    r[0] += fz;
+                    r[1] += fv as u8 as f64;
+                    r[2] += oz;
+                    r[3] += ov as u8 as f64;
+                    r[4] += fb * ob;
+                    r[5] += fb;
+                    r[6] += ob;
+                    r[7] += both as u8 as f64;
+                    r[8] += fz * fz;
+                    r[9] += fz;
+                    r[10] += fv as u8 as f64;
+                    r[11] += oz * oz;
+                    r[12] += oz;
+                    r[13] += ov as u8 as f64;
                 }
-                for k in 0..3 {
-                    s[k] += wr * r[k];
+                for k in 0..4 {
+                    t[k] += r[k];
+                }
+                for k in 4..14 {
+                    t[k] += wr * r[k];
                 }
             }
-            s
+            t
         })
         .collect();
-    let t = sums.iter().fold([0.0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]);
-    t[0] / (t[1] * t[2]).sqrt()
+    let mut t = [0.0; 14];
+    for s in &sums {
+        for k in 0..14 {
+            t[k] += s[k];
+        }
+    }
+    let (mf, mo) = (t[0] / t[1], t[2] / t[3]);
+    let num = t[4] - mo * t[5] - mf * t[6] + mf * mo * t[7];
+    let dff = t[8] - 2.0 * mf * t[9] + mf * mf * t[10];
+    let doo = t[11] - 2.0 * mo * t[12] + mo * mo * t[13];
+    num / (dff * doo).sqrt()
 }
 
 #[cfg(test)]
