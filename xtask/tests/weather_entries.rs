@@ -70,3 +70,19 @@ fn weather_entries_are_registered() {
     assert_eq!(tasks.bench.iter().map(|e| e.name).collect::<Vec<_>>(), ["score_year"]);
     assert_eq!(tasks.stress.iter().map(|e| e.name).collect::<Vec<_>>(), ["standin_years"]);
 }
+
+/// The tour entry end to end in quick mode (about 25 s in the test profile; the tour runs it in
+/// release with 4x the training).
+#[test]
+fn weather_tour_entry_runs_and_writes_its_pictures() {
+    let dir = tempfile::tempdir().unwrap();
+    let ctx = xtask::registry::TaskContext { out_dir: dir.path().into(), quick: true, threads: 2 };
+    let tasks = xtask::entries::weather::tasks();
+    let outcome = (tasks.tour[0].run)(&ctx).unwrap();
+    eprintln!("{}", outcome.markdown);
+    let row = &outcome.rows[0];
+    assert!(row.error.is_some_and(f64::is_finite), "{row:?}");
+    for f in &outcome.files {
+        assert!(dir.path().join(f).is_file(), "{f:?} missing");
+    }
+}
