@@ -6,7 +6,7 @@
 //! | [`cnn`] | [`WeatherCnn`], WeatherBench's baseline CNN (periodic convs, ELU) |
 //! | [`data`] | [`Dataset`] `[time, variable, lat, lon]` + constants, [`Normalizer`], [`SampleSpec`] (history, fixed or continuous lead, targets) |
 //! | [`model`] | [`WeatherResNet`] and [`ResNetConfig`] (full size with the paper's parameter count, CPU size) |
-//! | [`train`] | latitude-weighted MSE, Adam, reduce-on-plateau, early stopping, checkpoints and resume; [`train::predict`] |
+//! | [`train`](mod@train) | latitude-weighted MSE, Adam, reduce-on-plateau, early stopping, checkpoints and resume; [`train::predict`] |
 
 pub mod cnn;
 pub mod data;
