@@ -204,41 +204,7 @@ enum WeatherCommand {
         seed: u64,
     },
     /// Train the CPU-sized Rasp & Thuerey ResNet (continuous lead 6 h..5 d) on generated data.
-    Train {
-        /// Data directory of `weather generate` (default: target/pbdl/weather/data).
-        #[arg(long)]
-        data: Option<PathBuf>,
-        /// Run directory (checkpoints every epoch; an existing one resumes).
-        #[arg(long)]
-        out: PathBuf,
-        /// climate (pretraining) or truth.
-        #[arg(long, default_value = "truth")]
-        source: String,
-        /// Start from the best weights of this run directory (fine-tuning).
-        #[arg(long)]
-        init: Option<PathBuf>,
-        /// Most epochs (early stopping after 5 without improvement).
-        #[arg(long, default_value_t = 20)]
-        epochs: usize,
-        /// Updates per epoch (batch 32).
-        #[arg(long, default_value_t = 100)]
-        steps_per_epoch: usize,
-        /// Learning rate (Adam; cut by 5 after 2 epochs without improvement).
-        #[arg(long, default_value_t = 1e-3)]
-        lr: f64,
-        /// ResNet width.
-        #[arg(long, default_value_t = 32)]
-        width: usize,
-        /// Residual blocks.
-        #[arg(long, default_value_t = 4)]
-        blocks: usize,
-        /// Train on only the latest this many truth training years (a short record).
-        #[arg(long)]
-        truth_train_years: Option<f64>,
-        /// Seed of the initialisation, sample order and dropout.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-    },
+    Train(weather::TrainArgs),
     /// Score baselines and trained runs on the truth's test year: RMSE and ACC per lead,
     /// report.md, scores.json and RMSE-vs-lead plots.
     Eval {
@@ -359,34 +325,7 @@ fn main() -> anyhow::Result<()> {
             let out = out.unwrap_or_else(|| report::target_dir().join("weather/data"));
             weather::generate(weather::GenerateArgs { out, truth_years, climate_years, seed })
         }
-        Command::Weather(WeatherCommand::Train {
-            data,
-            out,
-            source,
-            init,
-            epochs,
-            steps_per_epoch,
-            lr,
-            width,
-            blocks,
-            truth_train_years,
-            seed,
-        }) => {
-            let data = data.unwrap_or_else(|| report::target_dir().join("weather/data"));
-            weather::train_cmd(weather::TrainArgs {
-                data,
-                out,
-                source,
-                init,
-                epochs,
-                steps_per_epoch,
-                lr,
-                width,
-                blocks,
-                truth_train_years,
-                seed,
-            })
-        }
+        Command::Weather(WeatherCommand::Train(args)) => weather::train_cmd(args),
         Command::Weather(WeatherCommand::Eval { data, runs, out }) => {
             let data = data.unwrap_or_else(|| report::target_dir().join("weather/data"));
             let out = out.unwrap_or_else(|| report::target_dir().join("weather/eval"));

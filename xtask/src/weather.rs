@@ -143,35 +143,48 @@ fn spec() -> SampleSpec {
 }
 
 /// What `cargo xtask weather train` was asked to do.
+#[derive(clap::Args)]
 pub struct TrainArgs {
-    /// Data directory of `generate`.
-    pub data: PathBuf,
-    /// Run directory (checkpoints, summary).
+    /// Data directory of `weather generate` (default: target/pbdl/weather/data).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Run directory (checkpoints every epoch; an existing one resumes).
+    #[arg(long)]
     pub out: PathBuf,
-    /// `climate` (pretraining) or `truth`.
+    /// climate (pretraining) or truth.
+    #[arg(long, default_value = "truth")]
     pub source: String,
-    /// A run directory whose best weights start this run (fine-tuning).
+    /// Start from the best weights of this run directory (fine-tuning).
+    #[arg(long)]
     pub init: Option<PathBuf>,
-    /// Most epochs.
+    /// Most epochs (early stopping after 5 without improvement).
+    #[arg(long, default_value_t = 20)]
     pub epochs: usize,
-    /// Updates per epoch.
+    /// Updates per epoch (batch 32).
+    #[arg(long, default_value_t = 100)]
     pub steps_per_epoch: usize,
-    /// Learning rate.
+    /// Learning rate (Adam; cut by 5 after 2 epochs without improvement).
+    #[arg(long, default_value_t = 1e-3)]
     pub lr: f64,
-    /// Width and residual blocks of the ResNet.
+    /// ResNet width.
+    #[arg(long, default_value_t = 32)]
     pub width: usize,
     /// Residual blocks.
+    #[arg(long, default_value_t = 4)]
     pub blocks: usize,
-    /// Only this many truth training years (the latest ones), to mimic a short record.
+    /// Train on only the latest this many truth training years (a short record).
+    #[arg(long)]
     pub truth_train_years: Option<f64>,
-    /// Seed.
+    /// Seed of the initialisation, sample order and dropout.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
 
 /// Trains the CPU-sized ResNet on the climate run or the truth's training years, validating on
 /// the truth's validation year; normalisation always from the truth's training years.
 pub fn train_cmd(args: TrainArgs) -> anyhow::Result<()> {
-    let truth = load(&args.data, "truth")?;
+    let data = args.data.clone().unwrap_or_else(|| crate::report::target_dir().join("weather/data"));
+    let truth = load(&data, "truth")?;
     let (mut tr, va, _) = truth_splits(&truth)?;
     if let Some(years) = args.truth_train_years {
         let n = ((years * 365.0 * 24.0 / tr.step_hours).round() as usize).min(tr.len());
@@ -180,7 +193,7 @@ pub fn train_cmd(args: TrainArgs) -> anyhow::Result<()> {
     let norm = Normalizer::fit(&tr);
     let source = match args.source.as_str() {
         "truth" => tr,
-        "climate" => load(&args.data, "climate")?,
+        "climate" => load(&data, "climate")?,
         other => anyhow::bail!("--source must be climate or truth, not {other}"),
     };
     let spec = spec();

@@ -321,7 +321,7 @@ pub enum Flavour {
 /// (hours since 1970-01-01, standard calendar), `lat`, `lon`, and for a [`LeadForecast`]
 /// `lead_time` (hours) first; NaN marks missing values.
 pub fn write(path: &Path, forecast: &Forecast, flavour: Flavour) -> Result<()> {
-    use netcdf_writer::{NcAttrValue, NcFileBuilder, NcWriteFormat, NcWriteOptions};
+    use netcdf_writer::{NcAttrValue, NcFileBuilder};
     let werr = |e: netcdf_writer::Error| Error::NetCdf { file: path.to_path_buf(), reason: e.to_string() };
     let (name, grid, values, times, leads) = match forecast {
         Forecast::Direct(f) => (&f.name, &f.grid, &f.values, f.times.clone(), None),
@@ -350,13 +350,7 @@ pub fn write(path: &Path, forecast: &Forecast, flavour: Flavour) -> Result<()> {
     let hours: Vec<f64> = times.iter().map(|&t| t as f64 / HOUR as f64).collect();
     b.write_variable(tv, &hours).map_err(werr)?;
     dim_ids.push(td);
-    for (dim, coords, units) in [("lat", &grid.lat, "degrees_north"), ("lon", &grid.lon, "degrees_east")] {
-        let d = b.add_dimension(dim, coords.len() as u64).map_err(werr)?;
-        let v = b.add_variable::<f64>(dim, &[d]).map_err(werr)?;
-        b.add_variable_attribute(v, "units", text(units)).map_err(werr)?;
-        b.write_variable(v, coords).map_err(werr)?;
-        dim_ids.push(d);
-    }
+    dim_ids.extend(add_lat_lon(&mut b, grid).map_err(werr)?);
     match values {
         Values::F32(v) => {
             let id = b.add_variable::<f32>(name.as_str(), &dim_ids).map_err(werr)?;
@@ -368,13 +362,7 @@ pub fn write(path: &Path, forecast: &Forecast, flavour: Flavour) -> Result<()> {
         }
     }
     b.add_attribute("first_time", text(&times.first().map(|&t| format_time(t)).unwrap_or_default())).map_err(werr)?;
-    let format = match flavour {
-        Flavour::Classic => NcWriteFormat::AutoClassic,
-        Flavour::Nc4 => NcWriteFormat::Nc4,
-    };
-    let (_, bytes) = b.to_vec(NcWriteOptions { format }).map_err(werr)?;
-    pbdl_core::io::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
-        .map_err(|e| Error::Io { file: path.to_path_buf(), source: std::io::Error::other(e.to_string()) })
+    finish(&b, path, flavour)
 }
 
 /// Writes constant maps (`[lat, lon]` each, float32) with `lat`/`lon` coordinates, atomically,
@@ -385,17 +373,11 @@ pub fn write_constants(
     constants: &[(String, Vec<f32>)],
     flavour: Flavour,
 ) -> Result<()> {
-    use netcdf_writer::{NcAttrValue, NcFileBuilder, NcWriteFormat, NcWriteOptions};
+    use netcdf_writer::NcFileBuilder;
     let werr = |e: netcdf_writer::Error| Error::NetCdf { file: path.to_path_buf(), reason: e.to_string() };
     let mut b = NcFileBuilder::new();
     let mut dims = Vec::new();
-    for (dim, coords, units) in [("lat", &grid.lat, "degrees_north"), ("lon", &grid.lon, "degrees_east")] {
-        let d = b.add_dimension(dim, coords.len() as u64).map_err(werr)?;
-        let v = b.add_variable::<f64>(dim, &[d]).map_err(werr)?;
-        b.add_variable_attribute(v, "units", NcAttrValue::Chars(units.into())).map_err(werr)?;
-        b.write_variable(v, coords).map_err(werr)?;
-        dims.push(d);
-    }
+    dims.extend(add_lat_lon(&mut b, grid).map_err(werr)?);
     for (name, values) in constants {
         if values.len() != grid.n_lat() * grid.n_lon() {
             return Err(Error::InvalidArgument(format!(
@@ -408,13 +390,7 @@ pub fn write_constants(
         let v = b.add_variable::<f32>(name.as_str(), &dims).map_err(werr)?;
         b.write_variable(v, values).map_err(werr)?;
     }
-    let format = match flavour {
-        Flavour::Classic => NcWriteFormat::AutoClassic,
-        Flavour::Nc4 => NcWriteFormat::Nc4,
-    };
-    let (_, bytes) = b.to_vec(NcWriteOptions { format }).map_err(werr)?;
-    pbdl_core::io::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
-        .map_err(|e| Error::Io { file: path.to_path_buf(), source: std::io::Error::other(e.to_string()) })
+    finish(&b, path, flavour)
 }
 
 /// Reads the named constant maps (`[lat, lon]`) of a constants file as float32.
@@ -434,4 +410,34 @@ pub fn read_constants(path: &Path, names: &[&str]) -> Result<Vec<(String, Vec<f3
             }
         })
         .collect()
+}
+
+/// Adds the `lat` and `lon` dimensions and coordinate variables (degrees) to a file being built.
+fn add_lat_lon(
+    b: &mut netcdf_writer::NcFileBuilder,
+    grid: &LatLonGrid,
+) -> netcdf_writer::Result<Vec<netcdf_writer::DimensionId>> {
+    let mut dims = Vec::with_capacity(2);
+    for (dim, coords, units) in [("lat", &grid.lat, "degrees_north"), ("lon", &grid.lon, "degrees_east")] {
+        let d = b.add_dimension(dim, coords.len() as u64)?;
+        let v = b.add_variable::<f64>(dim, &[d])?;
+        b.add_variable_attribute(v, "units", netcdf_writer::NcAttrValue::Chars(units.into()))?;
+        b.write_variable(v, coords)?;
+        dims.push(d);
+    }
+    Ok(dims)
+}
+
+/// Serialises a built file in the requested flavour and writes it atomically.
+fn finish(b: &netcdf_writer::NcFileBuilder, path: &Path, flavour: Flavour) -> Result<()> {
+    use netcdf_writer::{NcWriteFormat, NcWriteOptions};
+    let format = match flavour {
+        Flavour::Classic => NcWriteFormat::AutoClassic,
+        Flavour::Nc4 => NcWriteFormat::Nc4,
+    };
+    let (_, bytes) = b
+        .to_vec(NcWriteOptions { format })
+        .map_err(|e| Error::NetCdf { file: path.to_path_buf(), reason: e.to_string() })?;
+    pbdl_core::io::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))
+        .map_err(|e| Error::Io { file: path.to_path_buf(), source: std::io::Error::other(e.to_string()) })
 }
