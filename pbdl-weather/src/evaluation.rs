@@ -119,6 +119,45 @@ pub fn baseline_scores(
     Ok(out)
 }
 
+/// The forecaster's forecasts at each lead (in steps) from `inits`: one [`LeadForecast`] per
+/// target variable holding every lead, in physical units.
+pub fn network_forecasts(
+    net: &dyn Forecaster,
+    test: &Dataset,
+    norm: &Normalizer,
+    spec: &SampleSpec,
+    inits: &[usize],
+    leads: &[usize],
+) -> Result<Vec<LeadForecast>> {
+    let mut merged: Vec<LeadForecast> = Vec::new();
+    for &lead in leads {
+        let fcs = predict(net, test, norm, spec, inits, lead, 32)?;
+        if merged.is_empty() {
+            merged = fcs;
+            continue;
+        }
+        for (m, f) in merged.iter_mut().zip(fcs) {
+            m.lead_hours.extend_from_slice(&f.lead_hours);
+            if let (Values::F64(a), Values::F64(b)) = (&mut m.values, &f.values) {
+                a.extend_from_slice(b);
+            }
+        }
+    }
+    Ok(merged)
+}
+
+/// RMSE and ACC per lead of forecasts of `test`'s variables (matched by name).
+pub fn forecast_scores(model: &str, forecasts: &[LeadForecast], test: &Dataset) -> Result<Vec<LeadScore>> {
+    let mut out = Vec::new();
+    for fc in forecasts {
+        let var = test.variables.iter().position(|v| *v == fc.name).ok_or_else(|| {
+            crate::Error::InvalidArgument(format!("forecast of '{}' but the data hold {:?}", fc.name, test.variables))
+        })?;
+        out.extend(per_lead(model, fc, &test.field(var))?);
+    }
+    Ok(out)
+}
+
 /// The forecaster's scores at each lead (in steps) from `inits`, for each target variable.
 pub fn network_scores(
     model: &str,
@@ -129,14 +168,7 @@ pub fn network_scores(
     inits: &[usize],
     leads: &[usize],
 ) -> Result<Vec<LeadScore>> {
-    let mut out = Vec::new();
-    for &lead in leads {
-        let fcs = predict(net, test, norm, spec, inits, lead, 32)?;
-        for (fc, &var) in fcs.iter().zip(&spec.targets) {
-            out.extend(per_lead(model, fc, &test.field(var))?);
-        }
-    }
-    Ok(out)
+    forecast_scores(model, &network_forecasts(net, test, norm, spec, inits, leads)?, test)
 }
 
 /// A markdown table: one row per model, RMSE (and ACC) per lead for one variable.

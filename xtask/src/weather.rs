@@ -42,7 +42,9 @@ pub fn score(args: ScoreArgs) -> anyhow::Result<()> {
 use candle_core::{DType, Device};
 use candle_nn::{VarBuilder, VarMap};
 use pbdl_core::train::Progress;
-use pbdl_weather::evaluation::{baseline_scores, markdown_table, network_scores, BaselineOptions, LeadScore};
+use pbdl_weather::evaluation::{
+    baseline_scores, forecast_scores, markdown_table, network_forecasts, BaselineOptions, LeadScore,
+};
 use pbdl_weather::forecaster::{
     train, Dataset, Lead, Normalizer, ResNetConfig, SampleSpec, TrainConfig, WeatherResNet,
 };
@@ -119,12 +121,6 @@ fn load(dir: &Path, tag: &str) -> anyhow::Result<Dataset> {
     Ok(Dataset::from_fields(&[read("z")?, read("t")?], constants)?)
 }
 
-/// The time indices `[a, b)` of a dataset as its own dataset.
-fn slice(d: &Dataset, a: usize, b: usize) -> Dataset {
-    let plane = d.grid.n_lat() * d.grid.n_lon() * d.variables.len();
-    Dataset { times: d.times[a..b].to_vec(), values: d.values[a * plane..b * plane].to_vec(), ..d.clone() }
-}
-
 /// Truth splits: all but the last two years for training, then one year each for validation and test.
 fn truth_splits(d: &Dataset) -> anyhow::Result<(Dataset, Dataset, Dataset)> {
     let year = (365.0 * 24.0 / d.step_hours).round() as usize;
@@ -134,7 +130,7 @@ fn truth_splits(d: &Dataset) -> anyhow::Result<(Dataset, Dataset, Dataset)> {
         d.len()
     );
     let n = d.len();
-    Ok((slice(d, 0, n - 2 * year), slice(d, n - 2 * year, n - year), slice(d, n - year, n)))
+    Ok((d.slice(0, n - 2 * year), d.slice(n - 2 * year, n - year), d.slice(n - year, n)))
 }
 
 fn spec() -> SampleSpec {
@@ -188,7 +184,7 @@ pub fn train_cmd(args: TrainArgs) -> anyhow::Result<()> {
     let (mut tr, va, _) = truth_splits(&truth)?;
     if let Some(years) = args.truth_train_years {
         let n = ((years * 365.0 * 24.0 / tr.step_hours).round() as usize).min(tr.len());
-        tr = slice(&tr, tr.len() - n, tr.len());
+        tr = tr.slice(tr.len() - n, tr.len());
     }
     let norm = Normalizer::fit(&tr);
     let source = match args.source.as_str() {
@@ -271,8 +267,12 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
         let net = WeatherResNet::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
         pbdl_core::io::load_varmap(run.join("best"), &varmap)?;
         let name = format!("resnet_{}", run.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default());
-        scores.extend(network_scores(&name, &net, &te, &norm, &spec, &inits, &EVAL_LEADS)?);
-        write_lead_forecast(&args.out.join(format!("forecast_{name}_z.nc")), &net, &te, &norm, &spec, &inits)?;
+        let forecasts = network_forecasts(&net, &te, &norm, &spec, &inits, &EVAL_LEADS)?;
+        scores.extend(forecast_scores(&name, &forecasts, &te)?);
+        // z by lead as float32 NetCDF-4, scorable by `weather score` (and score.py).
+        let Some(mut z) = forecasts.into_iter().next() else { continue };
+        z.values = pbdl_weather::field::Values::F32(z.values.to_f64().into_iter().map(|x| x as f32).collect());
+        write(&args.out.join(format!("forecast_{name}_z.nc")), &Forecast::ByLead(z), Flavour::Nc4)?;
     }
     // The test year's truth, so that `weather score` can re-score the forecast files.
     write(&args.out.join("truth_test_z.nc"), &Forecast::Direct(te.field(0)), Flavour::Nc4)?;
@@ -322,32 +322,5 @@ pub fn eval(args: EvalArgs) -> anyhow::Result<()> {
     pbdl_core::io::write_atomic(args.out.join("report.md"), |w| std::io::Write::write_all(w, md.as_bytes()))?;
     println!("{md}");
     println!("wrote {}", args.out.display());
-    Ok(())
-}
-
-/// Writes the network's z forecasts at every evaluation lead as one NetCDF-4 file
-/// `[lead_time, time, lat, lon]` (time = initialisation), scorable by `weather score`.
-fn write_lead_forecast(
-    path: &Path,
-    net: &WeatherResNet,
-    te: &Dataset,
-    norm: &Normalizer,
-    spec: &SampleSpec,
-    inits: &[usize],
-) -> anyhow::Result<()> {
-    let mut values = Vec::new();
-    let mut first = None;
-    for &lead in &EVAL_LEADS {
-        let fc = pbdl_weather::forecaster::predict(net, te, norm, spec, inits, lead, 32)?.remove(0);
-        values.extend(fc.values.to_f64().into_iter().map(|x| x as f32));
-        first.get_or_insert(fc);
-    }
-    let Some(first) = first else { return Ok(()) };
-    let all = pbdl_weather::LeadForecast {
-        lead_hours: EVAL_LEADS.iter().map(|&l| l as f64 * te.step_hours).collect(),
-        values: pbdl_weather::field::Values::F32(values),
-        ..first
-    };
-    write(path, &Forecast::ByLead(all), Flavour::Nc4)?;
     Ok(())
 }

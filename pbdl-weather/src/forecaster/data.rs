@@ -93,6 +93,16 @@ impl Dataset {
         self.grid.n_lat() * self.grid.n_lon()
     }
 
+    /// The times `a..b` as a dataset of their own (same variables, grid and constants).
+    pub fn slice(&self, a: usize, b: usize) -> Self {
+        let per_time = self.plane() * self.variables.len();
+        Self {
+            times: self.times[a..b].to_vec(),
+            values: self.values[a * per_time..b * per_time].to_vec(),
+            ..self.clone()
+        }
+    }
+
     /// Variable `v` at time index `t` as a `[lat, lon]` slice.
     pub fn map(&self, t: usize, v: usize) -> &[f32] {
         let p = self.plane();

@@ -17,12 +17,11 @@ use candle_core::{DType, Device, Module, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use pbdl_core::conv::{conv_transpose_act, Conv2d, Conv2dParams, ConvLayerConfig};
 use pbdl_core::nn::Activation;
-use pbdl_core::nn::{BatchNorm2d, BatchNormConfig};
 use pbdl_core::sample::{resize2d, Resize};
 use pbdl_core::seed;
 use pbdl_core::train::{AdamConfig, OptimizerConfig};
-use pbdl_nets::padding::{PaddedConv2d, Padding};
 use pbdl_nets::recurrent::{Lstm, LstmConfig};
+use pbdl_weather::forecaster::{ResNetConfig, WeatherResNet};
 
 /// The entries of `pbdl-nets`.
 pub fn tasks() -> CrateTasks {
@@ -49,53 +48,6 @@ fn row(case: &str, size: &str, seconds: f64, threads: usize) -> BenchRow {
         error_kind: String::new(),
         peer: false,
         threads,
-    }
-}
-
-/// One periodic conv -> LeakyReLU(0.3) -> BatchNorm unit of the WeatherBench ResNet.
-struct WeatherUnit {
-    conv: PaddedConv2d,
-    norm: BatchNorm2d,
-}
-
-impl WeatherUnit {
-    fn new(c_in: usize, c_out: usize, kernel: usize, vb: VarBuilder) -> TaskResult<Self> {
-        let conv = PaddedConv2d::same(c_in, c_out, kernel, Padding::PeriodicX, vb.pp("conv"))?;
-        let norm = BatchNorm2d::new(c_out, BatchNormConfig::default(), vb.pp("bn"))?;
-        Ok(Self { conv, norm })
-    }
-
-    fn forward(&self, x: &Tensor) -> TaskResult<Tensor> {
-        let h = self.conv.forward_act(x, Activation::LeakyRelu { negative_slope: 0.3 })?;
-        Ok(self.norm.forward(&h, true)?)
-    }
-}
-
-struct WeatherResNet {
-    input: WeatherUnit,
-    blocks: Vec<(WeatherUnit, WeatherUnit)>,
-    output: PaddedConv2d,
-}
-
-impl WeatherResNet {
-    fn new(vb: VarBuilder) -> TaskResult<Self> {
-        let input = WeatherUnit::new(117, 128, 7, vb.pp("in"))?;
-        let blocks = (0..19)
-            .map(|i| {
-                let b = vb.pp(format!("block{i}"));
-                Ok((WeatherUnit::new(128, 128, 3, b.pp("a"))?, WeatherUnit::new(128, 128, 3, b.pp("b"))?))
-            })
-            .collect::<TaskResult<_>>()?;
-        let output = PaddedConv2d::same(128, 3, 3, Padding::PeriodicX, vb.pp("out"))?;
-        Ok(Self { input, blocks, output })
-    }
-
-    fn forward(&self, x: &Tensor) -> TaskResult<Tensor> {
-        let mut h = self.input.forward(x)?;
-        for (a, b) in &self.blocks {
-            h = (&h + b.forward(&a.forward(&h)?)?)?;
-        }
-        Ok(self.output.forward(&h)?)
     }
 }
 
@@ -163,13 +115,15 @@ fn bench_training_steps(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     // WeatherBench ResNet: one Adam step.
     if selected("weather_resnet_train_step") {
         let varmap = VarMap::new();
-        let net = WeatherResNet::new(VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
+        // pbdl-weather's network at full size, without dropout (as the PyTorch peer).
+        let cfg = ResNetConfig { dropout: 0.0, ..ResNetConfig::full_size(117, 3) };
+        let net = WeatherResNet::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
         let trainable = pbdl_core::nn::batch_norm::trainable_vars(&varmap);
         let mut opt = OptimizerConfig::Adam(AdamConfig { lr: 1e-4, ..Default::default() }).build(trainable)?;
         let x = seed::randn((4, 117, 32, 64), 0.0, 1.0, DType::F32, &dev, 1)?;
         let y = seed::randn((4, 3, 32, 64), 0.0, 1.0, DType::F32, &dev, 2)?;
         let s = median_seconds(1, reps, || -> TaskResult<()> {
-            let loss = mse(&net.forward(&x)?, &y)?;
+            let loss = mse(&net.forward(&x, true, 0)?, &y)?;
             candle_nn::Optimizer::backward_step(&mut opt, &loss)?;
             Ok(())
         });
@@ -179,10 +133,9 @@ fn bench_training_steps(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     // pbdl-weather's CPU-sized forecaster as the stand-in experiment trains it (no dropout,
     // as the peer): one Adam step at batch 32.
     if selected("weather_cpu_resnet_train_step") {
-        use pbdl_weather::forecaster::{ResNetConfig, WeatherResNet as Forecaster};
         let varmap = VarMap::new();
         let cfg = ResNetConfig { width: 32, blocks: 4, dropout: 0.0, ..ResNetConfig::cpu_size(10, 2) };
-        let net = Forecaster::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
+        let net = WeatherResNet::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
         let trainable = pbdl_core::nn::batch_norm::trainable_vars(&varmap);
         let mut opt = OptimizerConfig::Adam(AdamConfig { lr: 1e-3, ..Default::default() }).build(trainable)?;
         let x = seed::randn((32, 10, 32, 64), 0.0, 1.0, DType::F32, &dev, 7)?;

@@ -163,11 +163,7 @@ fn tour_standin_forecast(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     let climate = pbdl_weather::standin::run(&ClimateConfig::default(), 1_483_228_800, 100.0, 120.0, |_| {})?;
     let gen_seconds = t0.elapsed().as_secs_f64();
     let all = Dataset::from_fields(&[climate.z.clone(), climate.t.clone()], climate.constants.clone())?;
-    let cut = |a: usize, b: usize| {
-        let plane = 2 * 32 * 64;
-        Dataset { times: all.times[a..b].to_vec(), values: all.values[a * plane..b * plane].to_vec(), ..all.clone() }
-    };
-    let (tr, va, te) = (cut(0, 320), cut(320, 360), cut(360, 480));
+    let (tr, va, te) = (all.slice(0, 320), all.slice(320, 360), all.slice(360, 480));
     let norm = Normalizer::fit(&tr);
     let spec = SampleSpec { history: vec![0, 1, 2], lead: Lead::Continuous { min: 1, max: 12 }, targets: vec![0, 1] };
     let varmap = VarMap::new();
