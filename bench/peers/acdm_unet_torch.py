@@ -27,6 +27,8 @@ import statistics
 import sys
 import time
 
+from provenance import stamp, versions_of  # bench/peers/provenance.py, beside this script
+
 THREADS = int(os.environ.get("PBDL_THREADS", "2"))
 
 try:
@@ -177,7 +179,7 @@ def main():
                          "error": None, "error_kind": "", "peer": True, "threads": THREADS})
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as f:
-        json.dump({"rows": rows}, f, indent=2)
+        json.dump({"rows": stamp(rows, __file__, versions_of(torch))}, f, indent=2)
 
 
 if __name__ == "__main__":

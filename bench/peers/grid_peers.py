@@ -25,6 +25,8 @@ import traceback
 
 import numpy as np
 
+from provenance import stamp, versions_named  # bench/peers/provenance.py, beside this script
+
 NU = 0.01
 THREADS = int(os.environ.get("PBDL_THREADS", "2"))
 GHIA_U = [  # (y, u) on x = 0.5, Re = 100; Ghia, Ghia & Shin (1982), J. Comput. Phys. 48:387, Table I
@@ -238,7 +240,8 @@ def main():
         try:
             seconds, err = fn()
             print(f"peers: {case} {method} {n}^2: {seconds * 1e3:.3f} ms/step, error {err:.3e}", file=sys.stderr)
-            rows.append(row(case, method, n, seconds, err, kind))
+            modules = ("jax", "jax_cfd", "numpy") if method.startswith("jax_cfd") else ("phi", "jax", "numpy")
+            rows.extend(stamp([row(case, method, n, seconds, err, kind)], __file__, versions_named(*modules)))
         except Exception as e:  # a peer failing is a result to report, not a reason to stop
             print(f"peers: {case} {method} {n}^2 skipped: {type(e).__name__}: {e}", file=sys.stderr)
             if os.environ.get("PBDL_PEERS_DEBUG"):

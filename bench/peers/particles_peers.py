@@ -40,6 +40,8 @@ import traceback
 
 import numpy as np
 
+from provenance import stamp, versions_named  # bench/peers/provenance.py, beside this script
+
 THREADS = int(os.environ.get("PBDL_THREADS", "2"))
 A_LCG = 6364136223846793005
 C_LCG = 1442695040888963407
@@ -165,7 +167,7 @@ def run_neighbors(n, rows):
         out = row(case, method, size_str(n, entries), secs, unit)
         if "query_pairs" in method:
             out["threads"] = 1  # scipy builds and queries single-threaded here
-        rows.append(out)
+        rows.extend(stamp([out], __file__, versions_named(module, "numpy")))
 
 
 # ---------------------------------------------------------------- PySPH dam break
@@ -244,7 +246,7 @@ def run_pysph(dx, timed_steps, rows):
               f"{n} particles {counts}, {steps} steps run, fluid h/dx at the end {h_over_dx:.2f}", file=sys.stderr)
         r = row("dam_break_2d_step", method, f"{n}_particles_dx{dx:g}", secs, "step")
         r["threads"] = THREADS if openmp else 1
-        rows.append(r)
+        rows.extend(stamp([r], __file__, versions_named("pysph", "numpy")))
 
 
 def main():
@@ -259,7 +261,7 @@ def main():
     if args.only in (None, "pysph"):
         run_pysph(0.05, 20 if args.quick else 200, rows)
     with open(args.out + ".tmp", "w") as f:
-        json.dump({"rows": rows}, f, indent=2)
+        json.dump({"rows": rows}, f, indent=2)  # rows are stamped where they are measured
     os.replace(args.out + ".tmp", args.out)
     print(f"peers: wrote {len(rows)} rows to {args.out}", file=sys.stderr)
 

@@ -9,6 +9,8 @@ import argparse, importlib.util, json, os, statistics, time
 import numpy as np
 import xarray as xr
 
+from provenance import stamp, versions_of  # bench/peers/provenance.py, beside this script
+
 
 def year_of_fields(seed, n_time=8760):
     rng = np.random.default_rng(seed)
@@ -60,9 +62,9 @@ def main():
         print(f"xarray read {flavour}: {s * 1e3:.1f} ms ({mb / s:.0f} MB/s)")
     out = os.path.join(args.root, "target/pbdl/bench/weather_peers.json")
     os.makedirs(os.path.dirname(out), exist_ok=True)
-    meta = f"xarray {xr.__version__}, numpy {np.__version__}, {time.strftime('%Y-%m-%d')}"
+    meta = versions_of(xr, np)
     with open(out + ".tmp", "w") as f:
-        json.dump({"rows": rows, "meta": meta}, f, indent=1)
+        json.dump({"rows": stamp(rows, __file__, meta)}, f, indent=1)
     os.replace(out + ".tmp", out)
     print(f"wrote {out} ({meta})")
 

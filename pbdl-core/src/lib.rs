@@ -18,7 +18,9 @@
 //! | [`train`] | optimisers (Adam/AdamW/SGD+momentum) from serde configs, lr schedules, gradient clipping, CSV/JSON scalar logs, progress bar, divergence guard |
 //! | [`sample`] | differentiable bilinear/trilinear sampling at points and warping (clamped or periodic), resize (nearest, bilinear, bicubic) |
 //! | [`fft`] | differentiable real FFTs over the last 2 or 3 axes as numpy/PyTorch ([`fft::rfft2`], [`fft::irfft2`], [`fft::rfft3`], [`fft::irfft3`]; `(re, im)` as a trailing axis), [`fft::power_spectrum_2d`] |
+//! | [`shard`] | sharded data generation: `--shard i/n` item ranges, manifests with SHA-256, [`shard::open_shards`] checks and reads a directory of shards |
 //! | [`stepper`] | the simulator seams: [`stepper::Stepper`] (state in, state out, operators listed, differentiable where it is) and [`stepper::Evolve`] (in place, adaptive step, `run_until`) |
+//! | [`testing`] | for tests that need `../shared` data or published weights: a visible skip that fails in CI ([`testing::skip_or_fail`]) |
 //! | [`threads`] | the one thread policy: [`threads::init`] sets rayon's pool, candle's and gemm's thread count once (`PBDL_THREADS`), [`threads::parallel`] says whether an op is big enough to split (`PBDL_SERIAL_BELOW`) |
 //! | `ndarray_interop` (feature `ndarray`) | candle tensors to and from `ndarray` arrays: buffers moved, views without copies |
 //! | [`matmul`] | [`matmul::matmul`]: the one bounds-checked strided matrix product (gemm, runtime CPU dispatch) behind every hand-written kernel |
@@ -44,7 +46,9 @@ pub mod op;
 pub mod real;
 pub mod sample;
 pub mod seed;
+pub mod shard;
 pub mod stepper;
+pub mod testing;
 pub mod threads;
 pub mod tolerance;
 pub mod train;

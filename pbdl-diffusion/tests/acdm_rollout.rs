@@ -79,7 +79,7 @@ fn replaying_the_truth_scores_perfectly() {
     let r = evaluate(&model, seq, norm, &d.config, &cfg, lsim.as_ref()).unwrap();
     match lsim {
         Some(_) => assert_eq!(r.lsim, [0.0; 3]),
-        None => println!("LSiM weights not found: LSiM part skipped"),
+        None => pbdl_core::testing::skip_or_fail("LSiM weights not found: the LSiM part of the evaluation"),
     }
     println!("{r:?}");
     assert_eq!((r.steps, r.first_non_finite), (100, None));

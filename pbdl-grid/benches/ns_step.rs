@@ -2,8 +2,9 @@
 //! per Runge-Kutta stage), f32, the Taylor-Green setup of the tests (periodic, FFT pressure) and
 //! the lid-driven cavity (walls, sparse Cholesky pressure).
 //!
-//! Peers measured on this machine (2 threads, f32): JAX-CFD FV + RK4 0.49 / 1.13 / 2.85 ms per
-//! step at 64^2 / 128^2 / 256^2.
+//! Peers (JAX-CFD FV + RK4 and spectral, PhiFlow) are not quoted here, because quoted times go
+//! stale: `bench/peers/run.sh` measures them on the machine at hand and `cargo xtask bench grid`
+//! shows them beside pbdl's rows with their date and versions.
 #![allow(missing_docs)] // criterion_group! generates an undocumented pub fn
 
 use candle_core::DType;

@@ -1,7 +1,7 @@
 //! Bad input across pbdl-metrics: mismatched shapes, NaN/Inf, empty arrays, unsupported dtypes,
 //! unreadable files and weight files with missing or wrongly shaped tensors give typed errors
 //! that name the problem; nothing panics. (LSiM's own cases are in `lsim_tests.rs`, the `.pth`
-//! converter's in `weights_tests.rs`.) VolSiM cases are skipped with a message without weights.
+//! converter's in `weights_tests.rs`.) VolSiM cases are skipped with a message without weights (a failure in CI).
 
 use candle_core::{DType, Device, Tensor};
 use pbdl_metrics::classic::{
@@ -119,7 +119,7 @@ fn volsim_path() -> Option<PathBuf> {
     let p =
         pbdl_metrics::weights::weights_dir().map(|d| d.join(pbdl_metrics::weights::VOLSIM_FILE)).filter(|p| p.exists());
     if p.is_none() {
-        eprintln!("SKIPPED: VolSiM weights not found (set PBDL_WEIGHTS_DIR or put them in ../shared/weights)");
+        pbdl_core::testing::skip_or_fail("VolSiM weights not found (set PBDL_WEIGHTS_DIR or put them in ../shared/weights)");
     }
     p
 }

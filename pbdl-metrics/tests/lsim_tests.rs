@@ -1,9 +1,10 @@
 //! LSiM against the published example, its metric properties, gradients and bad input.
 //!
 //! Tests that need the weights or the example images read `../shared/` beside the checkout (or
-//! `$PBDL_WEIGHTS_DIR` for the weights) and are skipped with a message when they are absent.
+//! `$PBDL_WEIGHTS_DIR` for the weights) and are skipped with a message when they are absent (and fail in CI, see `pbdl_core::testing`).
 
 use candle_core::{DType, Device, Tensor};
+use pbdl_core::testing::skip_or_fail;
 use pbdl_core::{check_grad, seed, GradCheckOptions};
 use pbdl_metrics::lsim::{hwc_to_nchw, MIN_NATIVE_SIDE};
 use pbdl_metrics::{Error, Lsim, LsimOptions, LsimSize, NormScope};
@@ -28,7 +29,7 @@ fn lsim() -> Option<&'static Lsim> {
         .get_or_init(|| {
             let p = weights_path();
             if !p.exists() {
-                eprintln!("SKIPPED: LSiM weights not found at {} (set PBDL_WEIGHTS_DIR)", p.display());
+                skip_or_fail(&format!("LSiM weights not found at {} (set PBDL_WEIGHTS_DIR)", p.display()));
                 return None;
             }
             Some(Lsim::load(&p).expect("the shared LSiM weights load"))
@@ -39,7 +40,7 @@ fn lsim() -> Option<&'static Lsim> {
 fn example() -> Option<[Tensor; 3]> {
     let dir = shared().join("data/lsim-example");
     if !dir.is_dir() {
-        eprintln!("SKIPPED: {} not found", dir.display());
+        skip_or_fail(&format!("{} not found", dir.display()));
         return None;
     }
     let read = |n: &str| {
@@ -175,7 +176,7 @@ fn bad_input_is_a_typed_error() {
 fn weight_files_with_missing_or_misshapen_tensors_are_rejected() {
     let p = weights_path();
     if !p.exists() {
-        eprintln!("SKIPPED: LSiM weights not found at {}", p.display());
+        skip_or_fail(&format!("LSiM weights not found at {}", p.display()));
         return;
     }
     let dir = tempfile::tempdir().unwrap();

@@ -158,9 +158,13 @@ fn adapter_hig_step_equals_explicit_half_inverse() {
 }
 
 /// (d) A short HIG run of the conv + dense candle model (324 parameters) on the linear chain:
-/// 8 steps of b = 32 must lower the test loss. (A 10x cut, the criterion of the 1,444-parameter
-/// Mlp's doc example, was tried first and missed: 0.917 -> 0.149, 6.1x.)
+/// 8 steps of b = 32 must cut the test loss 10x, the criterion of the 1,444-parameter Mlp's doc
+/// example and the bar this test was written with. It is NOT met: 0.917 -> 0.149, 6.1x (an
+/// earlier version of this test then asserted only `after < before`, a bar loosened after the
+/// miss; the audit of issue 25 restored the first one). The adapter's correctness is shown by
+/// the exact-step tests above; this is a training-speed claim that the conv model misses.
 #[test]
+#[ignore = "NOT met: 6.1x loss cut in 8 HIG steps, bar 10x (fails by design; README says not met)"]
 fn adapter_hig_training_reduces_the_loss() {
     let physics = Oscillators::linear_chain();
     let data = Dataset::return_to_start(256, 4, 0);
@@ -179,7 +183,8 @@ fn adapter_hig_training_reduces_the_loss() {
         t.elapsed().as_secs_f64(),
         losses.join(" ")
     );
-    assert!(after < before, "{before:e} -> {after:e}");
+    println!("ACCEPTANCE: hig_adapter_conv measured={:.1}x loss cut bar=>= 10x", before / after);
+    assert!(after * 10.0 <= before, "{before:e} -> {after:e}: {:.1}x, bar 10x", before / after);
 }
 
 /// HIG through the adapter follows HIG through the Mlp it was built from, step after step.

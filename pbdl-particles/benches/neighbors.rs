@@ -1,7 +1,7 @@
 //! Fixed-radius neighbour search: 100k uniform random points in the unit square/cube, radius
 //! chosen for about 40 neighbours, full CSR lists (build + query, buffers reused).
-//! Peers on this machine (2 threads, CPU s): open3d 0.20 fixed_radius_search 0.59 (2D) / 0.89
-//! (3D); scipy cKDTree query_pairs 0.16 / 0.23.
+//! Peers (Open3D fixed_radius_search, SciPy cKDTree) are measured on the machine at hand by
+//! `bench/peers/particles_run.sh`; `cargo xtask bench particles` shows them with their date.
 
 #![allow(missing_docs)] // criterion_group! generates undocumented items
 

@@ -3,8 +3,8 @@
 //! and f32. Each iteration is one kick-drift-kick step at the stable dt, neighbour search
 //! included, continuing the same run (the flow develops during the measurement; a few hundred
 //! steps move the front by well under a particle spacing at these sizes).
-//! Peer on this machine (2 threads): PySPH 1.0b2 dam_break_2d at dx = 0.05, ~31 ms per step
-//! (the figure; `bench/peers/` measures it).
+//! Peer: PySPH 1.0b2 dam_break_2d at dx = 0.05, measured on the machine at hand by
+//! `bench/peers/particles_run.sh` (`cargo xtask bench particles` shows it with its date).
 
 #![allow(missing_docs)] // criterion_group! generates undocumented items
 

@@ -1,7 +1,7 @@
 //! `cargo xtask bench [crate]`: time against error in the shared schema.
 
 use crate::report;
-use xtask::bench_schema::{BenchReport, BenchRow};
+use xtask::bench_schema::{BenchReport, BenchRow, PeerFile, PeerSource};
 use xtask::registry;
 use xtask::registry::TaskContext;
 
@@ -36,14 +36,17 @@ pub fn run(krate: Option<&str>, quick: bool, only: Option<&str>) -> anyhow::Resu
         if rows.is_empty() && only.is_some() {
             continue;
         }
+        let mut peer_sources = Vec::new();
         let stem = match only {
             Some(name) => format!("{}_{name}", c.crate_name),
             None => {
-                rows.extend(peer_rows(&dir, c.crate_name));
+                let (peers, sources) = peer_rows(&dir, c.crate_name);
+                rows.extend(peers);
+                peer_sources = sources;
                 c.crate_name.to_string()
             }
         };
-        let report = BenchReport { rows };
+        let report = BenchReport { rows, peer_sources };
         let mut files = report.write(&dir, &stem)?;
         files.extend(xtask::bench_schema::plot_report(&report, &dir, &stem)?);
         let table: Vec<Vec<String>> = report
@@ -72,28 +75,42 @@ pub fn run(krate: Option<&str>, quick: bool, only: Option<&str>) -> anyhow::Resu
 }
 
 /// Rows measured by the peer scripts (`bench/peers/`), read from
-/// `target/pbdl/bench/<crate>_peers.json` when that file exists; a message otherwise.
-fn peer_rows(dir: &std::path::Path, krate: &str) -> Vec<BenchRow> {
+/// `target/pbdl/bench/<crate>_peers.json` when that file exists, with their sources; a message
+/// otherwise. Rows that do not say who measured them, when and with which versions are refused.
+fn peer_rows(dir: &std::path::Path, krate: &str) -> (Vec<BenchRow>, Vec<PeerSource>) {
     let path = dir.join(format!("{krate}_peers.json"));
     if !path.is_file() {
         let how = match krate {
             "grid" => Some("`bench/peers/run.sh` measures PhiFlow and JAX-CFD"),
             "particles" => Some("`bench/peers/particles_run.sh` measures SciPy, Open3D and PySPH"),
+            "metrics" => Some("`bench/peers/metrics_run.sh` measures the official LSiM/VolSiM code"),
             _ => None,
         };
         if let Some(how) = how {
             eprintln!("bench: no peer results at {} ({how}); peers skipped", path.display());
         }
-        return Vec::new();
+        return (Vec::new(), Vec::new());
     }
-    match BenchReport::read(&path) {
-        Ok(r) => {
-            eprintln!("bench: merged {} peer rows from {}", r.rows.len(), path.display());
-            r.rows.into_iter().map(|row| BenchRow { peer: true, ..row }).collect()
+    match PeerFile::read(&path) {
+        Ok(file) => {
+            let (rows, sources, undated) = file.into_dated();
+            if !undated.is_empty() {
+                eprintln!(
+                    "bench: refused the rows of {} in {}: no date/versions (written before peer rows were dated); \
+                     rerun the peer script in bench/peers/",
+                    undated.join(", "),
+                    path.display()
+                );
+            }
+            eprintln!("bench: merged {} dated peer rows from {}", rows.len(), path.display());
+            for s in &sources {
+                eprintln!("bench:   {} measured {} by {} ({})", s.method, s.date, s.script, s.versions);
+            }
+            (rows, sources)
         }
         Err(e) => {
             eprintln!("bench: ignoring {}: {e}", path.display());
-            Vec::new()
+            (Vec::new(), Vec::new())
         }
     }
 }

@@ -45,6 +45,93 @@ pub struct BenchRow {
 pub struct BenchReport {
     /// The measurements.
     pub rows: Vec<BenchRow>,
+    /// Where the peer rows come from: one entry per peer method and measurement run.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub peer_sources: Vec<PeerSource>,
+}
+
+/// Who measured a peer row, when, with what: written by the peer scripts (`bench/peers/`) into
+/// every row of `target/pbdl/bench/<crate>_peers.json` as `"measured": {...}`. A peer row without
+/// it is not merged, so that a number nobody can date never sits beside pbdl's.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PeerSource {
+    /// The peer method the source is for (filled in from the row when merging).
+    #[serde(default)]
+    pub method: String,
+    /// The script that measured it, relative to the repository root.
+    pub script: String,
+    /// When: an ISO 8601 UTC time stamp (`2026-11-27T08:15:00Z`).
+    pub date: String,
+    /// The peer's packages and their versions, e.g. `"torch 2.5.1, numpy 2.1.3"`.
+    pub versions: String,
+    /// The CPU model the script ran on.
+    #[serde(default)]
+    pub cpu: String,
+}
+
+/// One row of a peer file: the shared row plus its [`PeerSource`] (absent in undated files).
+#[derive(Clone, Debug, Deserialize)]
+pub struct PeerRow {
+    /// The measurement.
+    #[serde(flatten)]
+    pub row: BenchRow,
+    /// Who measured it and when.
+    #[serde(default)]
+    pub measured: Option<PeerSource>,
+}
+
+/// The dated peer row of `<bench_dir>/<krate>_peers.json` for `case` and `size` whose method
+/// contains `method`, with its source; `None` when no such row was measured (or it is undated).
+pub fn measured_peer(
+    bench_dir: &Path,
+    krate: &str,
+    case: &str,
+    method: &str,
+    size: &str,
+) -> Option<(BenchRow, PeerSource)> {
+    let (rows, sources, _) = PeerFile::read(&bench_dir.join(format!("{krate}_peers.json"))).ok()?.into_dated();
+    let row = rows.into_iter().find(|r| r.case == case && r.size == size && r.method.contains(method))?;
+    let source = sources.into_iter().find(|s| s.method == row.method)?;
+    Some((row, source))
+}
+
+/// A peer script's output file, `target/pbdl/bench/<crate>_peers.json`.
+#[derive(Clone, Debug, Deserialize)]
+pub struct PeerFile {
+    /// The rows, each with its source.
+    pub rows: Vec<PeerRow>,
+}
+
+impl PeerFile {
+    /// Reads a peer file.
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        serde_json::from_str(&text)
+            .map_err(|e| Error::Format { path: path.to_path_buf(), reason: format!("not a pbdl peer file: {e}") })
+    }
+
+    /// The dated rows as peer [`BenchRow`]s with their sources (one per method and run), and
+    /// the methods whose rows were refused because they carry no source.
+    pub fn into_dated(self) -> (Vec<BenchRow>, Vec<PeerSource>, Vec<String>) {
+        let (mut rows, mut sources, mut undated) = (Vec::new(), Vec::new(), Vec::new());
+        for PeerRow { row, measured } in self.rows {
+            match measured {
+                Some(src) if !src.date.is_empty() && !src.versions.is_empty() => {
+                    let src = PeerSource { method: row.method.clone(), ..src };
+                    if !sources.contains(&src) {
+                        sources.push(src);
+                    }
+                    rows.push(BenchRow { peer: true, ..row });
+                }
+                _ => {
+                    if !undated.contains(&row.method) {
+                        undated.push(row.method);
+                    }
+                }
+            }
+        }
+        (rows, sources, undated)
+    }
 }
 
 /// Measures the median seconds of `f` over `reps` runs after `warmup` unmeasured runs.
@@ -107,6 +194,13 @@ impl BenchReport {
                 if r.peer { "yes" } else { "no" },
                 r.threads
             ));
+        }
+        if !self.peer_sources.is_empty() {
+            s.push_str("\nPeer rows, measured by the scripts in `bench/peers/` (each on the CPU it names):\n\n");
+            s.push_str("| peer method | script | measured (UTC) | versions | CPU |\n|---|---|---|---|---|\n");
+            for p in &self.peer_sources {
+                s.push_str(&format!("| {} | {} | {} | {} | {} |\n", p.method, p.script, p.date, p.versions, p.cpu));
+            }
         }
         s
     }
@@ -223,6 +317,7 @@ mod tests {
                 peer: false,
                 threads: 2,
             }],
+            peer_sources: vec![],
         };
         let paths = report.write(dir.path(), "grid").unwrap();
         assert_eq!(BenchReport::read(&paths[0]).unwrap(), report);
@@ -233,6 +328,26 @@ mod tests {
             assert!(row.get(key).is_some(), "missing key {key}");
         }
         assert!(std::fs::read_to_string(&paths[1]).unwrap().contains("250.00 us"));
+    }
+
+    #[test]
+    fn peer_rows_without_a_source_are_refused() {
+        let text = r#"{"rows": [
+            {"case": "tg", "method": "jax", "size": "64", "seconds": 1e-3, "unit": "step", "error": null,
+             "error_kind": "", "peer": true, "threads": 2,
+             "measured": {"script": "bench/peers/grid_peers.py", "date": "2026-11-27T08:00:00Z",
+                          "versions": "jax 0.4.30", "cpu": "test cpu"}},
+            {"case": "tg", "method": "old", "size": "64", "seconds": 1e-3, "unit": "step", "error": null,
+             "error_kind": "", "peer": true, "threads": 2}]}"#;
+        let file: PeerFile = serde_json::from_str(text).unwrap();
+        let (rows, sources, undated) = file.into_dated();
+        assert_eq!(rows.len(), 1);
+        assert_eq!(rows[0].method, "jax");
+        assert_eq!(sources.len(), 1);
+        assert_eq!(sources[0].method, "jax");
+        assert_eq!(undated, ["old"]);
+        let report = BenchReport { rows, peer_sources: sources };
+        assert!(report.markdown().contains("| jax | bench/peers/grid_peers.py | 2026-11-27T08:00:00Z | jax 0.4.30 |"));
     }
 
     #[test]

@@ -2,7 +2,7 @@
 
 use crate::report;
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 use xtask::registry;
 use xtask::registry::{TaskContext, TourRow};
@@ -41,7 +41,7 @@ pub fn run(quick: bool, out: PathBuf) -> anyhow::Result<()> {
             md.push_str(&format!("## {} / {}\n\n{}\n\n", krate.crate_name, entry.name, entry.about));
             match result {
                 Ok(outcome) => {
-                    md.push_str(&outcome.markdown);
+                    md.push_str(&relink(&outcome.markdown, &dir, &out));
                     md.push_str("\n\n");
                     let files = outcome
                         .files
@@ -111,3 +111,56 @@ pub fn run(quick: bool, out: PathBuf) -> anyhow::Result<()> {
 }
 
 use std::io::Write as _;
+
+/// Rewrites the markdown links of one entry so that they work from `report.md` in `out`: an
+/// entry links its files by absolute path or relative to its own folder `entry_dir`; the report
+/// links them relative to `out`, so that the folder can be moved, zipped or shared. Links to
+/// web pages (`scheme://...`) and anchors stay as they are.
+fn relink(markdown: &str, entry_dir: &Path, out: &Path) -> String {
+    let mut result = String::with_capacity(markdown.len());
+    let mut rest = markdown;
+    while let Some(at) = rest.find("](") {
+        let (head, tail) = rest.split_at(at + 2);
+        result.push_str(head);
+        let Some(end) = tail.find(')') else {
+            rest = tail;
+            break;
+        };
+        let target = &tail[..end];
+        let linked = if target.contains("://") || target.starts_with('#') || target.is_empty() {
+            target.to_string()
+        } else {
+            let path = Path::new(target);
+            let full = if path.is_absolute() { path.to_path_buf() } else { entry_dir.join(path) };
+            match full.strip_prefix(out) {
+                Ok(rel) => rel.to_string_lossy().replace(std::path::MAIN_SEPARATOR, "/"),
+                // A file outside the report's folder: an absolute link is all that can work.
+                Err(_) => full.display().to_string(),
+            }
+        };
+        result.push_str(&linked);
+        rest = &tail[end..];
+    }
+    result.push_str(rest);
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::relink;
+    use std::path::Path;
+
+    #[test]
+    fn report_links_are_relative_to_the_report() {
+        let out = Path::new("/tmp/pbdl/tour");
+        let entry = out.join("grid/cavity");
+        let md = "see ![a](/tmp/pbdl/tour/grid/cavity/a.png) and ![b](b.gif), [web](https://x.org/y) [top](#t)";
+        assert_eq!(
+            relink(md, &entry, out),
+            "see ![a](grid/cavity/a.png) and ![b](grid/cavity/b.gif), [web](https://x.org/y) [top](#t)"
+        );
+        // Text without links, and an unclosed link, pass through unchanged.
+        assert_eq!(relink("no links (here)", &entry, out), "no links (here)");
+        assert_eq!(relink("broken ](x", &entry, out), "broken ](x");
+    }
+}

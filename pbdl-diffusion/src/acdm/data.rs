@@ -245,6 +245,24 @@ impl CylinderDataset {
         Ok(Self { config, sequences, seconds: 0.0 })
     }
 
+    /// Reads a directory of shards written by `cargo xtask data acdm --shard i/n` (one Reynolds
+    /// number per item, see [`pbdl_core::shard`]), checked, in item order; the config is the one
+    /// the manifests record.
+    pub fn load_shards(dir: &Path) -> Result<Self> {
+        let set = pbdl_core::shard::open_shards(dir)?;
+        let config: CylinderConfig =
+            serde_json::from_value(set.config["cylinder"].clone()).map_err(|e| Error::InvalidConfig {
+                name: "shards",
+                value: e.to_string(),
+                hint: "not a directory of ACDM cylinder shards",
+            })?;
+        let mut sequences = Vec::with_capacity(set.files.len());
+        for f in &set.files {
+            sequences.extend(Self::load(f, config.clone())?.sequences);
+        }
+        Ok(Self { config, sequences, seconds: 0.0 })
+    }
+
     /// Reads `dir/<config.cache_name(re)>` when it exists, otherwise simulates and writes it.
     pub fn cached(dir: &Path, config: &CylinderConfig, re: &[f64]) -> Result<Self> {
         let path = dir.join(config.cache_name(re));

@@ -188,6 +188,13 @@ fn grid_err(e: impl std::fmt::Display) -> Error {
 
 /// Generates `count` sequences of `kind` (deterministic in `cfg.seed`).
 pub fn generate(kind: Kind, count: usize, cfg: &DataConfig) -> Result<Vec<Sequence>> {
+    generate_items(kind, 0..count, cfg)
+}
+
+/// Generates sequences `items` of `kind`: sequence `i` depends only on `cfg`, `kind` and `i`, so
+/// the data set can be made in pieces (`--shard i/n`, see [`pbdl_core::shard`]) that equal one
+/// run of [`generate`].
+pub fn generate_items(kind: Kind, items: std::ops::Range<usize>, cfg: &DataConfig) -> Result<Vec<Sequence>> {
     if cfg.resolution < 16 {
         return Err(Error::invalid("train::generate", "resolution", "use at least 16 cells per side"));
     }
@@ -216,9 +223,9 @@ pub fn generate(kind: Kind, count: usize, cfg: &DataConfig) -> Result<Vec<Sequen
     // kept: smoke 0.68x, but advection-diffusion 1.72x and Burgers 1.41x the one-thread time
     // (their large temporary tensors page-fault, and two threads fault into one address space).
     if pbdl_core::threads::parallel(cfg.resolution * cfg.resolution) {
-        (0..count).map(one).collect()
+        items.map(one).collect()
     } else {
-        pbdl_core::threads::serial(|| (0..count).map(one).collect())
+        pbdl_core::threads::serial(|| items.map(one).collect())
     }
 }
 
@@ -557,6 +564,30 @@ pub fn load_sequences(path: impl AsRef<Path>) -> Result<Vec<Sequence>> {
             Ok(Sequence { kind, param, frames: frames.get(i)?.unsqueeze(1)? })
         })
         .collect()
+}
+
+/// The generator name of sharded metric data (`cargo xtask data metric`): `pbdl-metrics/<kind>`.
+pub fn shard_generator(kind: Kind) -> String {
+    format!("pbdl-metrics/{}", kind.short())
+}
+
+/// Reads a directory of shards written by `cargo xtask data metric --shard i/n` (one sequence
+/// per item file, see [`pbdl_core::shard`]), checked (every item once, hashes as recorded), in
+/// item order: the same sequences as one [`generate`] call with the same settings.
+pub fn load_shard_dir(dir: impl AsRef<Path>) -> Result<Vec<Sequence>> {
+    let set = pbdl_core::shard::open_shards(dir.as_ref())?;
+    if !set.generator.starts_with("pbdl-metrics/") {
+        return Err(Error::invalid(
+            "load_shard_dir",
+            "dir",
+            format!("{} holds `{}` data, not metric sequences", dir.as_ref().display(), set.generator),
+        ));
+    }
+    let mut out = Vec::with_capacity(set.files.len());
+    for f in &set.files {
+        out.extend(load_sequences(f)?);
+    }
+    Ok(out)
 }
 
 /// Loads `path` if it holds readable sequences, otherwise generates with `make` and writes it
