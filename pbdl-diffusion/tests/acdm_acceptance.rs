@@ -69,6 +69,13 @@ fn acdm_beats_one_step_unet_on_held_out_reynolds_numbers() {
     for re in TEST_RE {
         let r = evaluate(&acdm, b.held_out(re).unwrap(), &b.norm, &b.test.config, &cfg, lsim.as_ref()).unwrap();
         println!("{}", r.markdown_row());
+        println!(
+            "ACCEPTANCE: acdm_re{re} measured=finite {}, |ds/dt| ratio {:.2}, Strouhal error {:.1}% \
+             bar=finite, ratio in [0.5, 2], Strouhal error < 10%",
+            r.first_non_finite.is_none(),
+            r.stability_ratio(),
+            100.0 * r.strouhal_error()
+        );
         acdm_ok &= passes(&r);
     }
     // Posterior spread: 5 samples over a short horizon.
@@ -92,6 +99,13 @@ fn acdm_beats_one_step_unet_on_held_out_reynolds_numbers() {
             let r = evaluate(&m, b.held_out(re).unwrap(), &b.norm, &b.test.config, &cfg, lsim.as_ref()).unwrap();
             println!("{}", r.markdown_row());
             if method == Method::Unet {
+                println!(
+                    "ACCEPTANCE: unet_re{re} measured=finite {}, ratio {:.2}, Strouhal error {:.1}% \
+                     bar=misses the ACDM band",
+                    r.first_non_finite.is_none(),
+                    r.stability_ratio(),
+                    100.0 * r.strouhal_error()
+                );
                 unet_fails &= !passes(&r);
             }
         }
@@ -99,6 +113,7 @@ fn acdm_beats_one_step_unet_on_held_out_reynolds_numbers() {
     println!(
         "ACDM passes on all held-out Re: {acdm_ok}; one-step U-Net fails on all: {unet_fails}; spread {spread:.4}"
     );
+    println!("ACCEPTANCE: acdm_spread measured={spread:.4} bar=> 0");
     assert!(spread > 0.0);
     assert!(acdm_ok, "ACDM misses the acceptance band (numbers above)");
     assert!(unet_fails, "the one-step U-Net did not drift or damp (numbers above)");

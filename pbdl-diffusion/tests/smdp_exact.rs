@@ -395,9 +395,18 @@ fn split_experts_acceptance(seed: u64, odd: bool) {
         "seed {seed}: posterior {post:.3?}; worst vs the digest's {DIGEST_POSTERIOR:?} {worst_digest:.3}, \
          vs the refined chain's exact {exact:.3?} {worst_exact:.3}, vs the 4M-path dt 0.02 table {worst:.3}"
     );
+    println!(
+        "ACCEPTANCE: smdp_{}_experts_seed{seed} measured=ODE hits {:.1}%, SDE hits {:.1}%, ODE sign kept {:.1}%, \
+         posterior within {worst_digest:.3} of the digest bar=hits >= 95%, sign kept >= 99%, posterior within 0.05",
+        if odd { "odd" } else { "plain" },
+        100.0 * hits.ode_hits,
+        100.0 * hits.sde_hits,
+        100.0 * hits.ode_sign_kept
+    );
     assert!(worst_digest <= 0.05, "posterior off the digest's table by {worst_digest}");
     assert!(hits.ode_hits >= 0.95 && hits.sde_hits >= 0.95, "{hits:?}");
-    assert!(hits.ode_sign_kept >= 0.95, "the ODE should keep the sign of x_T: {hits:?}");
+    // The bar of this claim everywhere in the crate (smdp_toy.rs states it first): 99%.
+    assert!(hits.ode_sign_kept >= 0.99, "the ODE should keep the sign of x_T: {hits:?}");
 }
 
 /// The digest's `P(+1 | y)` at `y = -0.095, -0.025, -0.005, 0.005, 0.025, 0.095`.

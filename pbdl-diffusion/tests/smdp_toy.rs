@@ -139,8 +139,10 @@ fn short_training_reduces_both_losses() {
     }
 }
 
-/// Acceptance (i): in the affine case the learned score is within 10% (relative L2, pooled over
-/// the region p_t > 1% of its maximum) of the analytic score for t in [0.5, 10].
+/// Acceptance (i): in the affine case the learned score is within 10% (relative L2 over the
+/// region p_t > 1% of its maximum) of the analytic score for t in [0.5, 10]. Two bars, both
+/// asserted: pooled over all t, and at every t of the grid (the claim says "for t in
+/// [0.5, 10]", so a pooled pass alone does not meet it).
 ///
 /// Recipe: the official `affine_reg_mlp_big` config's stages (regularised 1-step loss; every 5th
 /// point at lr 1e-3, then every point at 1e-4, then 1e-5), shortened to 100k + 150k + 50k
@@ -154,9 +156,11 @@ fn short_training_reduces_both_losses() {
 /// steep tanh step between them; by density band: 0.081 where p_t is 1-10% of its maximum,
 /// 0.045 at 10-50%, 0.076 at 50-100%. A second seed (1; the `smdp_toy` example) gives 0.0929
 /// (t = 4: 0.213, t = 10: 0.140): a pass with little margin. The first attempt (1-step loss
-/// only, 50k updates per learning rate, no stride-5 stage) measured 0.108-0.110.
+/// only, 50k updates per learning rate, no stride-5 stage) measured 0.108-0.110. Per t the
+/// claim is NOT met (seed 0: up to 0.12 at t = 2.5..4; seed 1: 0.213 at t = 4), so this test
+/// fails on its second assertion.
 #[test]
-#[ignore = "acceptance run: 300k regularised 1-step updates; 3.5 minutes (measured 0.071, passes; seed 1: 0.093)"]
+#[ignore = "acceptance run: 300k regularised 1-step updates; 3.5 minutes (pooled 0.071 met; per-t max 0.10-0.12 at t = 2.5..4: NOT met, fails)"]
 fn affine_learned_score_matches_the_analytic_score() {
     let sde = ToySde::paper_affine();
     let mut net = ScoreMlp::paper(0);
@@ -177,7 +181,14 @@ fn affine_learned_score_matches_the_analytic_score() {
         "pooled: vs continuous {:.4}, vs Euler-chain law {:.4}, vs the loss minimiser {:.4}",
         cont.pooled, eul.pooled, tgt.pooled
     );
+    let (t_worst, worst) = cont.per_t.iter().fold((0.0, 0.0), |w, &(t, e)| if e > w.1 { (t, e) } else { w });
+    println!(
+        "ACCEPTANCE: smdp_affine_score measured=pooled {:.4}, worst {worst:.4} at t = {t_worst:.2} \
+         bar=pooled < 0.10 and < 0.10 at every t",
+        cont.pooled
+    );
     assert!(cont.pooled < 0.10, "pooled relative error {}", cont.pooled);
+    assert!(worst < 0.10, "relative error {worst:.4} at t = {t_worst:.2} (bar 0.10 at every t)");
 }
 
 /// The first attempt's config: the three learning rates of the official affine config with the

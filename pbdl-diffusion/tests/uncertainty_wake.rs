@@ -154,6 +154,13 @@ fn wake_surrogate_predicts_mean_and_spread_on_unseen_reynolds_numbers() {
         worst.2,
         t0.elapsed().as_secs_f64()
     );
+    println!(
+        "ACCEPTANCE: wake_surrogate measured=worst mean rel. error {:.4}, std correlation {:.3}, |std ratio - 1| {:.3} \
+         bar=< 0.05, > 0.8, < 0.2 at every test Re",
+        worst.0,
+        worst.1,
+        worst.2
+    );
     assert!(worst.0 < 0.05, "mean-field relative error {}", worst.0);
     assert!(worst.1 > 0.8, "std-field correlation {}", worst.1);
     assert!(worst.2 < 0.2, "mean std off by {}", worst.2);

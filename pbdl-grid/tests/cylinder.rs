@@ -107,6 +107,12 @@ fn cylinder_wake_sheds_vortices() {
 fn cylinder_strouhal_number_matches_williamson() {
     let w = run(8, 200.0, 0.7, Advection::CentralRk4);
     let st_ref = 0.165;
+    println!(
+        "ACCEPTANCE: cylinder_strouhal measured=St {:.4} ({:+.1}%), {} periods bar=|St - 0.165| <= 5%, >= 10 periods",
+        w.st,
+        100.0 * (w.st / st_ref - 1.0),
+        w.periods
+    );
     assert!(w.periods >= 10, "too few periods: {}", w.periods);
     assert!((w.st - st_ref).abs() <= 0.05 * st_ref, "St = {:.4}, reference {st_ref} +- 5%", w.st);
 }

@@ -149,6 +149,13 @@ fn abc_flow_64_cubed() {
     let (e64f, d64f, _) = run_abc(64, DType::F32);
     eprintln!("ABC f32 64^3: rel L2 {e64f:.3e}, div {d64f:.1e}");
     let g = Grid3d::cube(64, 2.0 * PI).unwrap();
+    println!(
+        "ACCEPTANCE: abc_64_order measured=order 32->64 {:.3} (rel. L2 {e64:.3e}), div f64 {d64:.1e}, f32 {d64f:.1e} \
+         bar=order in [1.9, 2.1], div <= {:.1e} (f64) / {:.1e} (f32)",
+        (e32 / e64).log2(),
+        div_bound(DType::F64, &g),
+        div_bound(DType::F32, &g)
+    );
     assert!((1.9..=2.1).contains(&(e32 / e64).log2()));
     assert!(d64 <= div_bound(DType::F64, &g) && d64f <= div_bound(DType::F32, &g));
 }

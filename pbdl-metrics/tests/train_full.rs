@@ -42,6 +42,10 @@ fn trained_metric_on_unseen_kinds() {
             if ours > l2 { "beats L2" } else { "does NOT beat L2" },
             if ours > ssim { "beats SSIM" } else { "does NOT beat SSIM" }
         );
+        println!(
+            "ACCEPTANCE: metric_{set} measured=trained {ours:.3}, L2 {l2:.3}, SSIM {ssim:.3} \
+             bar=above L2 and SSIM on at least one unseen kind"
+        );
         if ours > l2 && ours > ssim {
             wins.push(set);
         }

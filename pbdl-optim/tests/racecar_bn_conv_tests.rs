@@ -296,6 +296,12 @@ fn check_alignment(net: PeakNet) {
     let runs = peak_alignment_experiment(&cfg, &[net], &regs).unwrap();
     print_runs(&runs);
     for r in &runs {
+        println!(
+            "ACCEPTANCE: racecar_peak_{:?}_{} measured=min |cos| {:.3} bar=> 0.9 for racecar, < 0.9 for the baselines",
+            r.net,
+            r.regularizer.name(),
+            r.min_cos()
+        );
         match r.regularizer {
             Regularizer::Racecar => assert!(r.min_cos() > 0.9, "{r:?}"),
             _ => assert!(r.min_cos() < 0.9, "{r:?}"),

@@ -433,6 +433,14 @@ fn iisph_dam_break_to_t10_leaks_no_particle() {
         sim.wall_corrections(),
         sim.max_penetration() / sim.dx()
     );
+    println!(
+        "ACCEPTANCE: iisph_t10 measured={} leaked, compression max {:.3}%, deepest crossing {:.3} dx, finite {} \
+         bar=0 leaked at every 0.1, compression <= 1%, crossing < 0.5 dx",
+        sim.leaked(),
+        100.0 * comp,
+        sim.max_penetration() / sim.dx(),
+        sim.is_finite()
+    );
     assert!(sim.is_finite());
     assert!(comp <= 0.01, "average compression {comp}");
     assert!(sim.max_penetration() < 0.5 * sim.dx(), "a particle crossed the first wall-particle layer");

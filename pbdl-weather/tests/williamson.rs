@@ -32,6 +32,10 @@ fn test2(m: usize, n_lat: usize, dt: f64, alpha: f64, days: f64) -> ErrorNorms {
 }
 
 fn check_test2(e: ErrorNorms) {
+    println!(
+        "ACCEPTANCE: williamson2 measured=l1 {:.1e}, l2 {:.1e}, linf {:.1e} bar=l1, l2 < 1e-8, linf < 1e-7",
+        e.l1, e.l2, e.linf
+    );
     assert!(e.l1 < 1e-8 && e.l2 < 1e-8 && e.linf < 1e-7, "{e:?}");
 }
 
@@ -126,6 +130,18 @@ fn test6_rossby_haurwitz_wave_day14() {
     let (nu21, rel21, e21) = test6(21, 32, 1200.0, 14.0, 0.0);
     let (nu42, rel42, e42) = test6(42, 64, 600.0, 14.0, 0.0);
     let (nu63, rel63, e63) = test6(63, 96, 400.0, 14.0, 0.0);
+    println!(
+        "ACCEPTANCE: williamson6_day14 measured=phase error {:.1}% / {:.1}% / {:.1}%, l2 {:.2e} / {:.2e} / {:.2e} \
+         (T21 / T42 / T63), speed T42-T21 {:.2}%, T63-T42 {:.2}% bar=|phase error| < 10%, l2 < 0.05, resolutions within 3%",
+        100.0 * rel21,
+        100.0 * rel42,
+        100.0 * rel63,
+        e21.l2,
+        e42.l2,
+        e63.l2,
+        100.0 * (nu42 - nu21) / nu42,
+        100.0 * (nu63 - nu42) / nu63
+    );
     for (rel, e) in [(rel21, e21), (rel42, e42), (rel63, e63)] {
         assert!(rel.abs() < 0.10);
         assert!(e.l2 < 0.05);
@@ -209,6 +225,7 @@ fn test6_convergence_against_t170_reference() {
     );
     let fmt = |e: &ErrorNorms| format!("{:.3e} | {:.3e} | {:.3e}", e.l1, e.l2, e.linf);
     let mut bar_ok = true;
+    let mut l2s = Vec::new();
     for (di, &day) in DAYS.iter().enumerate() {
         let href_full = to_h(rtr.synthesis(&rphi[di]).unwrap());
         let mut prev: Option<(usize, ErrorNorms)> = None;
@@ -229,6 +246,7 @@ fn test6_convergence_against_t170_reference() {
             let label = if is_main { format!("T{m}") } else { format!("T{m}, half dt") };
             table += &format!("| {day} | {label} | {dt} | {} | {orders} |\n", fmt(&e));
             if is_main {
+                l2s.push(format!("day {day} T{m} {:.2e}", e.l2));
                 prev = Some((*m, e));
             }
         }
@@ -257,6 +275,10 @@ fn test6_convergence_against_t170_reference() {
         eprintln!("T{m} dt {dt} s: {sec:.1} s wall");
     }
     eprintln!("T{} dt {} s (reference): {rsec:.1} s wall; total {:.1} s", REF.0, REF.2, t_all.elapsed().as_secs_f64());
+    println!(
+        "ACCEPTANCE: williamson6_t170 measured=l2 {} bar=l1, l2, linf fall T21 > T42 > T63 at days 7 and 14",
+        l2s.join(", ")
+    );
     assert!(bar_ok, "errors do not decrease strictly T21 > T42 > T63 at day 7 and day 14 (see the table)");
 }
 
