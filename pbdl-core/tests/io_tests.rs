@@ -420,3 +420,60 @@ fn writing_unsupported_dtypes_is_a_dtype_error() {
     assert!(matches!(write_npz(d.path().join("b.npz"), &[("b", &t)]), Err(Error::DType { .. })));
     assert!(files_in(d.path()).is_empty());
 }
+
+// Regressions from `cargo xtask stress fuzz` (targets npy / npz).
+
+/// A `.npy` whose header shape multiplies past `usize` (crafted; was an unchecked product).
+#[test]
+fn npy_with_an_overflowing_shape_is_a_format_error() {
+    let d = dir();
+    let path = d.path().join("huge.npy");
+    let header = "{'descr': '<f8', 'fortran_order': False, 'shape': (4294967296, 4294967296, 16), }\n";
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    std::fs::write(&path, &bytes).unwrap();
+    match read_npy(&path) {
+        Err(Error::Format { reason, .. }) => assert!(reason.contains("more bytes than memory"), "{reason}"),
+        other => panic!("expected a format error, got {other:?}"),
+    }
+    // Elements fit but bytes do not (n * 8 overflows).
+    let header = "{'descr': '<f8', 'fortran_order': False, 'shape': (4611686018427387904,), }\n";
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    std::fs::write(&path, &bytes).unwrap();
+    assert!(matches!(read_npy(&path), Err(Error::Format { .. })));
+}
+
+/// A `.npz` member whose zip header declares more bytes than the archive holds is refused before
+/// anything is allocated for it (was `Vec::with_capacity(declared size)`).
+#[test]
+fn npz_member_declaring_more_than_the_file_is_a_format_error() {
+    let d = dir();
+    let path = d.path().join("a.npz");
+    let t = Tensor::new(&[1f32, 2.0, 3.0], &Device::Cpu).unwrap();
+    write_npz(&path, &[("a", &t)]).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    // The uncompressed size sits at offset 22 of a local header ("PK\x03\x04") and at offset 24
+    // of a central directory entry ("PK\x01\x02").
+    let declared = 0x7fff_fff0u32.to_le_bytes();
+    let mut patched = 0;
+    for i in 0..bytes.len() - 4 {
+        let at = match &bytes[i..i + 4] {
+            b"PK\x03\x04" => i + 22,
+            b"PK\x01\x02" => i + 24,
+            _ => continue,
+        };
+        bytes[at..at + 4].copy_from_slice(&declared);
+        patched += 1;
+    }
+    assert_eq!(patched, 2);
+    std::fs::write(&path, &bytes).unwrap();
+    for result in [read_npz(&path).map(|_| ()), read_npz_array(&path, "a").map(|_| ())] {
+        match result {
+            Err(Error::Format { reason, .. }) => assert!(reason.contains("declares 2147483632 bytes"), "{reason}"),
+            other => panic!("expected a format error, got {other:?}"),
+        }
+    }
+}

@@ -119,7 +119,9 @@ fn volsim_path() -> Option<PathBuf> {
     let p =
         pbdl_metrics::weights::weights_dir().map(|d| d.join(pbdl_metrics::weights::VOLSIM_FILE)).filter(|p| p.exists());
     if p.is_none() {
-        pbdl_core::testing::skip_or_fail("VolSiM weights not found (set PBDL_WEIGHTS_DIR or put them in ../shared/weights)");
+        pbdl_core::testing::skip_or_fail(
+            "VolSiM weights not found (set PBDL_WEIGHTS_DIR or put them in ../shared/weights)",
+        );
     }
     p
 }

@@ -17,7 +17,9 @@ fn volsim() -> Option<&'static Volsim> {
                 .map(|d| d.join(pbdl_metrics::weights::VOLSIM_FILE))
                 .filter(|p| p.exists());
             let Some(p) = p else {
-                pbdl_core::testing::skip_or_fail("VolSiM weights not found (set PBDL_WEIGHTS_DIR or put them in ../shared/weights)");
+                pbdl_core::testing::skip_or_fail(
+                    "VolSiM weights not found (set PBDL_WEIGHTS_DIR or put them in ../shared/weights)",
+                );
                 return None;
             };
             Some(Volsim::load(&p).expect("the shared VolSiM weights load"))

@@ -7,7 +7,11 @@
 //! | [`bench_schema`] | the shared bench schema ([`bench_schema::BenchRow`]: time next to error), its JSON/markdown/PNG report, [`bench_schema::median_seconds`] |
 //! | [`registry`] | the entry types ([`registry::Entry`], [`registry::CrateTasks`], ...) and the list of crates |
 //! | [`entries`] | one module per library crate with its tour, bench and stress entries |
+//! | [`acceptance`] | runs the `#[ignore]`d tests behind README numbers as child processes (stress entries `acceptance`) |
+//! | [`fuzz`] | mutation fuzzing of pbdl's file readers on stable Rust (`cargo xtask stress fuzz`) |
 
+pub mod acceptance;
 pub mod bench_schema;
 pub mod entries;
+pub mod fuzz;
 pub mod registry;

@@ -6,6 +6,8 @@
 //! * `bench [crate]`: time against error in the shared schema, `target/pbdl/bench/<crate>.json`
 //!   plus a markdown table and a PNG plot.
 //! * `stress [crate]`: long and extreme runs; reports the first step at which an invariant breaks.
+//!   `stress fuzz [--target NAME] [--seconds S] [--seed N]`: mutation fuzzing of the file
+//!   readers (`xtask::fuzz`); `--write-corpus` regenerates the seed corpus `fuzz/corpus/`.
 //! * `sim grid|particles <scene | file.toml>`: runs a scene, writes its trajectory (`.npz`) and
 //!   renders.
 //! * `metric <lsim|volsim|mse|ssim|...> A B`: a distance between two `.npy`/`.npz`/`.png`
@@ -14,14 +16,18 @@
 //!   PyTorch pickles) to the safetensors files `pbdl_metrics` loads.
 //! * `weather score --forecast F --truth T`: WeatherBench's official scores (RMSE, MAE, ACC,
 //!   per lead time) of NetCDF or `.npy` files as one JSON object.
+//! * `data metric|acdm ... --shard i/n --out DIR`: training data in shards for a job array;
+//!   `data check DIR`: every item once, hashes as recorded (see `pbdl_core::shard`).
 //! * `ci`: format check, clippy with `-D warnings`, the test suite.
 
 mod bench;
 mod ci;
+mod data;
 mod metric;
 mod report;
 mod sim;
 mod stress;
+mod stress_summary;
 mod tour;
 mod weather;
 mod weights;
@@ -33,8 +39,11 @@ use xtask::registry;
 /// candle allocates every op output afresh; with glibc, blocks >= 128 KiB go through mmap and
 /// each step pays page faults (grid steps at 128^2+). mimalloc reuses them: see
 /// docs/candle-traps.md. Binaries and benches only; libraries never set a global allocator.
+///
+/// Wrapped in a counter of live bytes (two relaxed atomics per allocation) so that
+/// `cargo xtask stress fuzz` can flag inputs that make a reader allocate far beyond their size.
 #[global_allocator]
-static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+static GLOBAL: xtask::fuzz::CountingAlloc<mimalloc::MiMalloc> = xtask::fuzz::CountingAlloc(mimalloc::MiMalloc);
 
 extern "C" {
     /// mimalloc's option setter (exported by the linked mimalloc; declared here because the
@@ -84,16 +93,19 @@ enum Command {
         #[arg(long)]
         entry: Option<String>,
     },
-    /// Long and extreme runs; exits non-zero when an invariant breaks.
+    /// Long and extreme runs; exits non-zero when an invariant breaks. `stress fuzz` fuzzes the
+    /// file readers instead (see --target, --seconds, --seed, --write-corpus).
     Stress {
-        /// Only this crate; all when omitted.
+        /// Only this crate; all when omitted. `fuzz`: mutation fuzzing of the file readers.
         krate: Option<String>,
-        /// Smaller sizes and fewer steps.
+        /// Smaller sizes and fewer steps (fuzz: 5 s per target).
         #[arg(long)]
         quick: bool,
         /// Only the entry of this name (its report goes to <crate>_<entry>.json).
         #[arg(long)]
         entry: Option<String>,
+        #[command(flatten)]
+        fuzz: stress::FuzzArgs,
     },
     /// Run a simulation scene; write its trajectory (.npz, [T, C, Y, X] per field) and PNG/GIF
     /// renders to target/pbdl/sim/<scene>/.
@@ -155,6 +167,9 @@ enum Command {
     /// WeatherBench: official scores of forecast files; the stand-in climate, the ResNet forecaster.
     #[command(subcommand)]
     Weather(WeatherCommand),
+    /// Training data in shards (`--shard i/n`, one job each, any scheduler) and their check.
+    #[command(subcommand)]
+    Data(data::DataCommand),
     /// fmt check, clippy -D warnings, tests.
     Ci,
     /// List the registered tour, bench and stress entries.
@@ -310,7 +325,14 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Tour { quick, out } => tour::run(quick, out.unwrap_or_else(|| report::target_dir().join("tour"))),
         Command::Bench { krate, quick, entry } => bench::run(krate.as_deref(), quick, entry.as_deref()),
-        Command::Stress { krate, quick, entry } => stress::run(krate.as_deref(), quick, entry.as_deref()),
+        Command::Stress { krate, quick, entry, fuzz } if krate.as_deref() == Some("fuzz") => {
+            anyhow::ensure!(entry.is_none(), "`stress fuzz` takes --target, not --entry");
+            stress::fuzz(fuzz, quick)
+        }
+        Command::Stress { krate, quick, entry, fuzz } => {
+            anyhow::ensure!(fuzz.is_empty(), "--target, --seconds, --seed and --write-corpus are for `stress fuzz`");
+            stress::run(krate.as_deref(), quick, entry.as_deref())
+        }
         Command::Sim { krate, scene, res, steps, seeds, precision, init, out } => {
             sim::run(sim::SimArgs { krate, scene, res, steps, init, out, seeds, precision })
         }
@@ -318,6 +340,7 @@ fn main() -> anyhow::Result<()> {
             metric::run(metric::MetricArgs { metric, a, b, weights, native, joint_batch, resize64 })
         }
         Command::Weights(WeightsCommand::Convert { input, output }) => weights::convert(&input, &output),
+        Command::Data(cmd) => data::run(cmd),
         Command::Weather(WeatherCommand::Score { forecast, truth, var, metric, lat, level }) => {
             weather::score(weather::ScoreArgs { forecast, truth, var, metric, lat, level })
         }

@@ -65,6 +65,20 @@ pub struct StressCheck {
     pub first_broken_step: Option<u64>,
     /// Numbers that back the verdict.
     pub detail: String,
+    /// The number the aggregate report (`target/pbdl/stress/summary.md`) collects, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measure: Option<StressMeasure>,
+}
+
+/// A number a stress check measured that `cargo xtask stress` collects across crates into its
+/// summary: the longest stable rollout, the largest stable time-step multiple.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StressMeasure {
+    /// A rollout that kept its invariants for this many steps (or outputs, as the check says).
+    StableSteps(u64),
+    /// The largest multiple of the default time step that stayed stable and accurate.
+    DtMultiple(f64),
 }
 
 /// A named entry: a function of the context.

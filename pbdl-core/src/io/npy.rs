@@ -170,8 +170,17 @@ fn read_member(path: &Path, archive: &mut Archive, i: usize) -> Result<Option<(S
     }
     drop(raw);
     let mut entry = archive.by_index(i).map_err(|e| bad(format!("array `{name}`: {e}")))?;
-    let mut bytes = Vec::with_capacity(entry.size() as usize);
-    entry.read_to_end(&mut bytes).map_err(|e| bad(format!("array `{name}`: {e}")))?;
+    // The declared size comes from the zip header, which a damaged or crafted file can set to
+    // anything: a stored member cannot be larger than the archive, so refuse before allocating.
+    let file_len = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+    let size = entry.size();
+    if size > file_len {
+        return Err(bad(format!(
+            "array `{name}` declares {size} bytes but the archive has only {file_len}; the file is damaged"
+        )));
+    }
+    let mut bytes = Vec::with_capacity(size as usize);
+    (&mut entry).take(size).read_to_end(&mut bytes).map_err(|e| bad(format!("array `{name}`: {e}")))?;
     let t = parse_npy(&bytes).map_err(|r| bad(format!("array `{name}`: {r}")))?;
     Ok(Some((name, t)))
 }
@@ -243,13 +252,15 @@ fn parse_npy(bytes: &[u8]) -> std::result::Result<Tensor, String> {
     let header =
         std::str::from_utf8(&bytes[start..data_start]).map_err(|_| "the .npy header is not text".to_string())?;
     let (dtype, fortran, shape) = parse_header(header)?;
-    let n: usize = shape.iter().product();
+    // Checked: the shape comes from the file and its product can exceed usize.
+    let too_big = || format!("the header's shape {shape:?} ({dtype:?}) has more bytes than memory can address");
+    let n = shape.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d)).ok_or_else(too_big)?;
     if fortran && shape.iter().filter(|&&d| d > 1).count() > 1 {
         return Err(
             "Fortran-order (column-major) arrays are not supported; save np.ascontiguousarray(a) instead".into()
         );
     }
-    let expected = n * dtype.size_in_bytes();
+    let expected = n.checked_mul(dtype.size_in_bytes()).ok_or_else(too_big)?;
     let data = &bytes[data_start..];
     if data.len() != expected {
         return Err(format!(

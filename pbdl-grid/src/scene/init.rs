@@ -30,7 +30,7 @@ pub enum Init {
     RandomModes {
         /// Largest velocity component.
         amplitude: f64,
-        /// Highest wavenumber per axis (>= 1).
+        /// Highest wavenumber per axis (1 to 32).
         max_wavenumber: u32,
         /// Random seed.
         seed: u64,
@@ -53,6 +53,9 @@ pub enum Init {
         amplitude: f64,
     },
 }
+
+/// Largest `max_wavenumber` of [`Init::RandomModes`].
+const MAX_WAVENUMBER: u32 = 32;
 
 fn unit() -> f64 {
     1.0
@@ -106,6 +109,14 @@ impl Init {
             Init::RandomModes { amplitude, max_wavenumber, .. } => {
                 if max_wavenumber == 0 {
                     return bad("init.max_wavenumber", "must be >= 1".into());
+                }
+                // The field is normalised on a 64^2 sample, where higher modes alias; the bound
+                // also keeps the (2k+1)(k+1) modes per cell cheap and `k^2` in range.
+                if max_wavenumber > MAX_WAVENUMBER {
+                    return bad(
+                        "init.max_wavenumber",
+                        format!("{max_wavenumber} is above {MAX_WAVENUMBER}; use at most {MAX_WAVENUMBER}"),
+                    );
                 }
                 amplitude.is_finite()
             }

@@ -456,6 +456,10 @@ impl Scene {
         if !one_d && g.ny < 2 {
             return bad("grid.ny", format!("a 2D scene needs at least 2 cells, got {}", g.ny));
         }
+        // Checked here so that the stepper's per-cell arithmetic cannot overflow.
+        if g.nx.checked_mul(g.ny).and_then(|c| c.checked_mul(64)).is_none() {
+            return bad("grid", format!("{} x {} cells do not fit in memory; use fewer cells", g.nx, g.ny));
+        }
         for (f, l) in [("grid.lx", g.lx), ("grid.ly", g.ly)] {
             if !(l > 0.0 && l.is_finite()) {
                 return bad(f, format!("must be a positive finite length, got {l}"));

@@ -30,6 +30,14 @@ impl Scene {
         let name = self.name.as_str();
         let seed = self.seed.wrapping_add(seed);
         if let Some(st) = &self.shock_tube {
+            if st.n > MAX_PARTICLES {
+                return Err(scene_err(
+                    name,
+                    "shock_tube.n",
+                    format!("{}; use at most {MAX_PARTICLES} particles", st.n),
+                ));
+            }
+            check_h_over_dx(name, "shock_tube.sph.eta", st.sph.eta)?;
             if init.is_some() {
                 return Err(scene_err(name, "init", "--init is not supported for shock tubes (use periodic_1d)"));
             }
@@ -73,8 +81,65 @@ fn narrow2<T: Real>(v: &[[f64; 2]]) -> Vec<[T; 2]> {
     v.iter().map(|p| [T::c(p[0]), T::c(p[1])]).collect()
 }
 
+/// Largest smoothing length over spacing (`h_over_dx`, 1D `eta`): beyond it every particle has
+/// thousands of neighbours, and walls and ghosts (as thick as the kernel support) grow without
+/// bound.
+const MAX_H_OVER_DX: f64 = 8.0;
+/// Largest number of wall layers.
+const MAX_WALL_LAYERS: usize = 64;
+/// Most particles a scene may ask for (about 2^26; more cannot be stepped in memory anyway).
+const MAX_PARTICLES: usize = 1 << 26;
+/// Largest noise lattice (cells per side at the finest octave).
+const MAX_NOISE_CELLS: usize = 1 << 20;
+
+fn check_h_over_dx(name: &str, field: &str, h_over_dx: f64) -> Result<()> {
+    if h_over_dx > MAX_H_OVER_DX {
+        return Err(scene_err(name, field, format!("{h_over_dx}; use at most {MAX_H_OVER_DX} (typically 1.2 to 2)")));
+    }
+    Ok(())
+}
+
+/// `base_cells * 2^(octaves - 1)` must stay a modest lattice (and the shift in range).
+fn check_noise(name: &str, sec: &str, base_cells: usize, octaves: usize) -> Result<()> {
+    if base_cells == 0 || octaves == 0 {
+        return Err(scene_err(name, &format!("{sec}.base_cells"), "base_cells and octaves must be at least 1"));
+    }
+    if octaves > 20 || base_cells > MAX_NOISE_CELLS >> (octaves - 1) {
+        return Err(scene_err(
+            name,
+            &format!("{sec}.octaves"),
+            format!(
+                "base_cells {base_cells} with {octaves} octaves makes a finest noise lattice above {MAX_NOISE_CELLS} cells; \
+                 use fewer octaves or base cells"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 fn build_dam_break<T: Real>(name: &str, db: &DamBreakScene, init: Option<&InitState>) -> Result<Stepper<T>> {
     let sec = "dam_break.geometry";
+    match db.solver {
+        DamSolver::Wcsph => check_h_over_dx(name, "dam_break.wcsph.h_over_dx", db.wcsph.h_over_dx)?,
+        DamSolver::Iisph => check_h_over_dx(name, "dam_break.iisph.h_over_dx", db.iisph.h_over_dx)?,
+    }
+    // Lengths are a times the ratios; an overflow to infinity would give an unbounded cell list.
+    let g = &db.geometry;
+    let extent = g.a * g.tank_width.abs().max(g.tank_height.abs()).max(g.height_ratio.abs()) * 4.0;
+    if !extent.is_finite() {
+        return Err(scene_err(
+            name,
+            "dam_break.geometry.a",
+            format!("{} m with tank {} x {} a overflows; use metres-sized values", g.a, g.tank_width, g.tank_height),
+        ));
+    }
+    if let Some(layers) = db.geometry.wall_layers.filter(|&l| l > MAX_WALL_LAYERS) {
+        return Err(scene_err(
+            name,
+            "dam_break.geometry.wall_layers",
+            format!("{layers}; use at most {MAX_WALL_LAYERS}"),
+        ));
+    }
     let mut stepper =
         match db.solver {
             DamSolver::Wcsph => Stepper::Wcsph(Box::new(db.geometry.build_as::<T>(db.wcsph).map_err(|e| match e {
@@ -181,12 +246,11 @@ fn build_periodic_1d<T: Real>(
     if !(0.0..1.0).contains(&p.amplitude) {
         return Err(f("amplitude", format!("{}; use 0 <= amplitude < 1", p.amplitude)));
     }
-    if p.n < 16 {
-        return Err(f("n", format!("{}; use at least 16 particles", p.n)));
+    if p.n < 16 || p.n > MAX_PARTICLES {
+        return Err(f("n", format!("{}; use 16 to {MAX_PARTICLES} particles", p.n)));
     }
-    if p.base_cells == 0 || p.octaves == 0 {
-        return Err(f("base_cells", "base_cells and octaves must be at least 1".into()));
-    }
+    check_noise(name, sec, p.base_cells, p.octaves)?;
+    check_h_over_dx(name, "periodic_1d.sph.eta", p.sph.eta)?;
     let gamma = p.sph.gamma;
     if !(gamma > 1.0 && gamma.is_finite()) {
         return Err(f("sph.gamma", format!("{gamma}; the adiabatic index must exceed 1")));
@@ -262,12 +326,11 @@ fn build_periodic_2d<T: Real>(
     if !(p.u_max >= 0.0 && p.u_max.is_finite()) {
         return Err(f("u_max", format!("{}; must be non-negative", p.u_max)));
     }
-    if p.n < 8 {
-        return Err(f("n", format!("{}; use at least 8 particles per side", p.n)));
+    if p.n < 8 || p.n.saturating_mul(p.n) > MAX_PARTICLES {
+        return Err(f("n", format!("{}; use 8 to {} particles per side", p.n, MAX_PARTICLES.isqrt())));
     }
-    if p.base_cells == 0 || p.octaves == 0 {
-        return Err(f("base_cells", "base_cells and octaves must be at least 1".into()));
-    }
+    check_noise(name, sec, p.base_cells, p.octaves)?;
+    check_h_over_dx(name, "periodic_2d.wcsph.h_over_dx", p.wcsph.h_over_dx)?;
     let l = p.length;
     let dx = l / p.n as f64;
     let domain = Domain::periodic([T::zero(); 2], [T::c(l); 2]);

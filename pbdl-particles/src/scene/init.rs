@@ -24,26 +24,44 @@ impl InitState {
     /// (exact for `f32` and `f64` arrays).
     pub fn from_arrays(arrays: &[(String, Tensor)]) -> Result<Self> {
         let get = |name: &str| arrays.iter().find(|(n, _)| n == name).map(|(_, t)| t);
-        let last = |t: &Tensor, rank: usize| -> Result<Tensor> {
+        let last = |name: &str, t: &Tensor, rank: usize| -> Result<Tensor> {
             let t = t.to_dtype(DType::F64)?;
-            Ok(if t.rank() == rank + 1 { t.get(t.dim(0)? - 1)? } else { t })
+            if t.rank() != rank + 1 {
+                return Ok(t);
+            }
+            // A trajectory of zero frames has no last frame to start from.
+            match t.dim(0)?.checked_sub(1) {
+                Some(k) => Ok(t.get(k)?),
+                None => Err(Error::SceneField {
+                    scene: "--init".into(),
+                    field: name.into(),
+                    reason: format!("the trajectory {:?} has no frames (T = 0)", t.dims()),
+                }),
+            }
         };
         let pos = get("positions").ok_or_else(|| Error::SceneField {
             scene: "--init".into(),
             field: "positions".into(),
             reason: "missing array `positions` ([n, d] or [T, n, d])".into(),
         })?;
-        let pos = last(pos, 2)?;
+        let pos = last("positions", pos, 2)?;
         let (n, dim) = pos.dims2().map_err(|_| Error::SceneField {
             scene: "--init".into(),
             field: "positions".into(),
             reason: format!("shape {:?}; expected [n, d] or [T, n, d]", pos.dims()),
         })?;
+        if n == 0 || dim == 0 {
+            return Err(Error::SceneField {
+                scene: "--init".into(),
+                field: "positions".into(),
+                reason: format!("shape {:?} holds no particles; give at least one particle [n >= 1, d]", pos.dims()),
+            });
+        }
         let read = |name: &'static str, rank: usize, len: usize| -> Result<Option<Vec<f64>>> {
             match get(name) {
                 None => Ok(None),
                 Some(t) => {
-                    let v = last(t, rank)?.flatten_all()?.to_vec1::<f64>()?;
+                    let v = last(name, t, rank)?.flatten_all()?.to_vec1::<f64>()?;
                     if v.len() != len {
                         return Err(Error::Length { op: "--init", arg: name, expected: len, got: v.len() });
                     }

@@ -309,7 +309,11 @@ fn key_of_value_at(text: &str, at: usize) -> Option<String> {
     let before = text.get(..at)?;
     let line = &before[before.rfind('\n').map_or(0, |i| i + 1)..];
     let lhs = line.trim_end().strip_suffix('=')?.trim_end();
-    let start = lhs.rfind(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == '-')).map_or(0, |i| i + 1);
+    // The byte after the last character that cannot be in a bare key (which may be multi-byte).
+    let start = lhs
+        .char_indices()
+        .rfind(|&(_, c)| !(c.is_ascii_alphanumeric() || c == '_' || c == '-'))
+        .map_or(0, |(i, c)| i + c.len_utf8());
     let key = &lhs[start..];
     (!key.is_empty()).then(|| key.to_string())
 }
@@ -402,5 +406,19 @@ impl Scene {
     pub fn with_precision(mut self, precision: Precision) -> Self {
         self.precision = precision;
         self
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::key_of_value_at;
+
+    /// Found by `cargo xtask stress fuzz`: the byte after a multi-byte character was taken as
+    /// `index + 1`, inside the character.
+    #[test]
+    fn key_lookup_steps_over_multibyte_characters() {
+        assert_eq!(key_of_value_at("xé= 1", 4), None);
+        assert_eq!(key_of_value_at("é dx= 1", 6), Some("dx".into()));
+        assert_eq!(key_of_value_at("[a]\ndx = 1", 9), Some("dx".into()));
     }
 }

@@ -488,12 +488,14 @@ fn stress_conv_fuzz(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             passed: first_bad.is_none(),
             first_broken_step: first_bad,
             detail: format!("worst relative difference {worst:.2e}"),
+            measure: None,
         },
         StressCheck {
             invariant: "f32 conv2d at 1e30 product scale stays finite".into(),
             passed: finite,
             first_broken_step: None,
             detail: format!("max |y| = {:.3e}", max_abs(&y)?),
+            measure: None,
         },
     ])
 }
@@ -521,6 +523,7 @@ fn stress_sampling(_ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             passed: first_bad.is_none(),
             first_broken_step: first_bad,
             detail: format!("scales {scales:?}"),
+            measure: None,
         });
     }
     Ok(checks)
@@ -556,12 +559,14 @@ fn stress_grad_seeds(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             passed: bad_conv.is_none(),
             first_broken_step: bad_conv,
             detail: format!("worst {worst_conv:.2e}"),
+            measure: None,
         },
         StressCheck {
             invariant: format!("warp gradient matches FD over {seeds} seeds (rel 1e-6)"),
             passed: bad_warp.is_none(),
             first_broken_step: bad_warp,
             detail: format!("worst {worst_warp:.2e}"),
+            measure: None,
         },
     ])
 }

@@ -24,9 +24,12 @@
 //!   bounded, density within [0, injected], speed bounded.
 //! * stress `karman_re1000`: the cylinder scene at Re = 1000: finite, divergence bounded, speed
 //!   bounded.
+//! * stress `acceptance`: the README's cavity Re 1000, cylinder Strouhal and ABC 64^3 numbers
+//!   from their `#[ignore]`d tests ([`crate::acceptance`]).
 
-use crate::bench_schema::{median_seconds, BenchRow};
-use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
+use crate::acceptance::AcceptanceTest;
+use crate::bench_schema::{measured_peer, median_seconds, BenchRow};
+use crate::registry::{CrateTasks, Entry, StressCheck, StressMeasure, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::viz::{self, PlotStyle, Series};
 use pbdl_grid::diagnostics::{strouhal_zero_crossings, track_invariants, InvariantBounds, InvariantReport};
@@ -108,9 +111,19 @@ pub fn tasks() -> CrateTasks {
                 run: stress_smoke,
             },
             Entry {
+                name: "dt_limit",
+                about: "Taylor-Green RK4 at 1..16x the solver's stable step, unchecked, to t = 5 (64^2; 32^2 to t = 2 quick): largest multiple with error <= 5%.",
+                run: super::stability::grid_dt_limit,
+            },
+            Entry {
                 name: "karman_re1000",
                 about: "Flow past a cylinder at Re = 1000 to t = 150 (t = 20 quick): finite, divergence bounded, speed bounded.",
                 run: stress_karman,
+            },
+            Entry {
+                name: "acceptance",
+                about: "The README's cavity Re 1000, cylinder Strouhal and ABC 64^3 numbers: runs their #[ignore]d tests in release (about 8 min; all quick).",
+                run: stress_acceptance,
             },
         ],
     }
@@ -126,8 +139,9 @@ fn files_markdown(files: &[std::path::PathBuf], ctx: &TaskContext) -> String {
         .iter()
         .filter(|f| f.extension().is_some_and(|e| e == "png" || e == "gif"))
         .map(|f| {
+            // Relative to the entry's folder; the tour rewrites links relative to its report.
             let rel = f.strip_prefix(&ctx.out_dir).unwrap_or(f);
-            format!("![{}]({})", rel.display(), f.display())
+            format!("![{}]({})", rel.display(), rel.display())
         })
         .collect::<Vec<_>>()
         .join("\n")
@@ -203,10 +217,24 @@ fn tour_cavity(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     viz::line_plot(&png, &series, &style)?;
     files.push(png);
     let steps = sim.step_index();
+    // PhiFlow's error on the same case, only as measured by the peer script (never a quoted number).
+    let bench_dir = ctx.out_dir.parent().and_then(|p| p.parent()).map(|p| p.join("bench"));
+    let size = format!("{n}x{n}");
+    let phiflow = match bench_dir.and_then(|d| measured_peer(&d, "grid", "lid_driven_cavity_re100", "phiflow", &size)) {
+        Some((row, src)) => format!(
+            "PhiFlow ({}, `{}`, measured {} by {}): max error {:.4}",
+            src.versions,
+            row.method,
+            src.date,
+            src.script,
+            row.error.unwrap_or(f64::NAN)
+        ),
+        None => format!("PhiFlow at {n}^2: not measured here (`bench/peers/run.sh` measures it)"),
+    };
     let markdown = format!(
         "{n}^2, f32, {steps} RK4 steps to t = {:.1} ({:.3} ms/step; operators: {}). Max |u - Ghia| on \
-         the vertical centreline {:.4}, max |v - Ghia| on the horizontal one {:.4} (PhiFlow 3.4 \
-         semi-Lagrangian at 64^2: 0.049 / 0.021). Ghia's points are joined by straight lines.\n\n{}",
+         the vertical centreline {:.4}, max |v - Ghia| on the horizontal one {:.4}. {phiflow}. Ghia's \
+         points are joined by straight lines.\n\n{}",
         sim.time(),
         1e3 * seconds / steps as f64,
         sim.operators().join(", "),
@@ -315,12 +343,14 @@ fn checks(inv: &InvariantReport, steps: usize, decaying: bool, div_bound: f64, r
             passed: inv.first_nonfinite.is_none(),
             first_broken_step: inv.first_nonfinite,
             detail: inv.error.clone().unwrap_or_else(|| format!("{steps} steps")),
+            measure: inv.first_nonfinite.is_none().then_some(StressMeasure::StableSteps(steps as u64)),
         },
         StressCheck {
             invariant: format!("max |div u| dx / max |u| <= {div_bound:.0e} after every step"),
             passed: inv.first_divergence.is_none(),
             first_broken_step: inv.first_divergence,
             detail: format!("worst {:.2e}", inv.worst_divergence),
+            measure: None,
         },
     ];
     if decaying {
@@ -332,6 +362,7 @@ fn checks(inv: &InvariantReport, steps: usize, decaying: bool, div_bound: f64, r
                 "energy {:.4e} -> {:.4e}; largest step-to-step change {:+.2e}",
                 inv.energy_start, inv.energy_last, inv.worst_growth
             ),
+            measure: None,
         });
     }
     out
@@ -372,6 +403,7 @@ fn stress_decaying_tgv(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
         passed: rate_err < 0.01,
         first_broken_step: if rate_err < 0.01 { None } else { Some(steps as u64) },
         detail: format!("{n}^2 f32 t = {:.1}: E/E0 = {got:.5}, exp(-4 nu t) = {expect:.5}", sim.time()),
+        measure: None,
     });
     Ok(c)
 }
@@ -392,6 +424,7 @@ fn stress_kolmogorov(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
         passed: inv.first_above_energy_cap.is_none(),
         first_broken_step: inv.first_above_energy_cap,
         detail: format!("64^2 f32 t = {:.1}: max energy {:.3e}, laminar {:.3e}", sim.time(), inv.max_energy, laminar),
+        measure: None,
     });
     Ok(c)
 }
@@ -714,24 +747,28 @@ fn stress_smoke(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             passed: first_nonfinite.is_none(),
             first_broken_step: first_nonfinite,
             detail: detail(error.unwrap_or_else(|| format!("{steps} steps"))),
+            measure: None,
         },
         StressCheck {
             invariant: format!("max |div u| dx / max |u| <= {DIV_BOUND_F32:.0e} after every step"),
             passed: first_div.is_none(),
             first_broken_step: first_div,
             detail: detail(format!("worst {worst_div:.2e}")),
+            measure: None,
         },
         StressCheck {
             invariant: "density within [0, rate t] (limited MacCormack stays bounded)".into(),
             passed: first_rho.is_none(),
             first_broken_step: first_rho,
             detail: detail(format!("density range seen [{rho_lo:.3e}, {rho_hi:.4}]")),
+            measure: None,
         },
         StressCheck {
             invariant: "max |u| <= sqrt(2 beta rate t H) (free fall of the densest possible smoke)".into(),
             passed: first_speed.is_none(),
             first_broken_step: first_speed,
             detail: detail(format!("largest max |u| {umax_seen:.3}")),
+            measure: None,
         },
     ])
 }
@@ -752,6 +789,7 @@ fn stress_karman(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
         passed: first_fast.is_none(),
         first_broken_step: first_fast,
         detail: format!("largest max |u| {:.3}", inv.max_speed),
+        measure: None,
     });
     let g = sim.scene().grid;
     for x in &mut c {
@@ -759,4 +797,36 @@ fn stress_karman(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             format!("Re = 1000, {}x{} f32, dt = {:.3e}, t = {:.0}: {}", g.nx, g.ny, sim.dt(), sim.time(), x.detail);
     }
     Ok(c)
+}
+
+/// The `#[ignore]`d tests behind the README's grid numbers (see [`crate::acceptance`]).
+const ACCEPTANCE: &[AcceptanceTest] = &[
+    AcceptanceTest {
+        package: "pbdl-grid",
+        file: "cavity",
+        test: "cavity_re1000_128_matches_ghia_within_003",
+        claim: "cavity Re 1000 at 128^2: max |u,v - Ghia| <= 0.03",
+        minutes: 1.5,
+        env: &[],
+    },
+    AcceptanceTest {
+        package: "pbdl-grid",
+        file: "cylinder",
+        test: "cylinder_strouhal_number_matches_williamson",
+        claim: "cylinder wake Re 100, 8 cells/D: |St - 0.165| <= 5%, >= 10 periods",
+        minutes: 5.0,
+        env: &[],
+    },
+    AcceptanceTest {
+        package: "pbdl-grid",
+        file: "ns3d",
+        test: "abc_flow_64_cubed",
+        claim: "ABC flow 32^3 -> 64^3: order in [1.9, 2.1], divergence at round-off",
+        minutes: 0.5,
+        env: &[],
+    },
+];
+
+fn stress_acceptance(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    crate::acceptance::run_tests(ctx, ACCEPTANCE)
 }

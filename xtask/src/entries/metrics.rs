@@ -5,12 +5,15 @@
 //! * bench `lsim`: LSiM time per pair (224 path from 128x128 and 256x256, native 128x128, batches
 //!   of 16 on both paths) with the error against the published values where the example data is
 //!   present; VolSiM (3-scale weights) per 64^3 pair, at native size and from 48^3 with the
-//!   cubic-spline resize to 64^3; and the official PyTorch times quoted in the project's issue as
-//!   `peer` rows (measured elsewhere on 2 contended threads, not by this entry).
+//!   cubic-spline resize to 64^3. The official PyTorch code is measured on the same cases by
+//!   `bench/peers/metrics_run.sh` (peer rows, merged with their date and versions).
 //! * bench `classic`: MSE, SSIM, Pearson, Spearman and the energy spectrum on 16 fields of 128x128.
+//! * stress `acceptance`: the README's metric-training claim from its `#[ignore]`d test
+//!   ([`crate::acceptance`]).
 
+use crate::acceptance::AcceptanceTest;
 use crate::bench_schema::{format_seconds, median_seconds, BenchRow};
-use crate::registry::{CrateTasks, Entry, TaskContext, TaskResult, TourOutcome, TourRow};
+use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::seed;
 use pbdl_metrics::classic::{energy_spectrum, mse, pearson, spearman, ssim2d, SsimConfig};
@@ -31,7 +34,7 @@ pub fn tasks() -> CrateTasks {
         bench: vec![
             Entry {
                 name: "lsim",
-                about: "LSiM time per pair (224 and native, batches of 16) and error vs published; VolSiM per 64^3 pair (native, resized from 48^3); official PyTorch reference times.",
+                about: "LSiM time per pair (224 and native, batches of 16) and error vs published; VolSiM per 64^3 pair (native, resized from 48^3). Peers: bench/peers/metrics_run.sh.",
                 run: bench_lsim,
             },
             Entry {
@@ -40,7 +43,13 @@ pub fn tasks() -> CrateTasks {
                 run: bench_classic,
             },
         ],
-        stress: vec![],
+        stress: vec![
+            Entry {
+                name: "acceptance",
+                about: "The README's metric-training claim: trains from scratch in its #[ignore]d test (about 8 min; not in quick).",
+                run: stress_acceptance,
+            },
+        ],
     }
 }
 
@@ -152,19 +161,6 @@ fn bench_lsim(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         let secs = median_seconds(1, reps.min(3), || r.distance(&a, &b).ok());
         rows.push(row("volsim_3scales_resize64", "48^3->64^3", secs, None, ctx.threads));
     }
-    // The official code's times from the issue (PyTorch, 2 contended threads), for the ratios.
-    for (case, size, seconds) in [
-        ("lsim_224", "128x128->224", 0.17),
-        ("lsim_224_batch16", "16x128x128->224", 1.7 / 16.0),
-        ("volsim_3scales", "64x64x64", 1.4),
-    ] {
-        rows.push(BenchRow {
-            method: "official_pytorch_issue_reference".into(),
-            peer: true,
-            threads: 2,
-            ..row(case, size, seconds, None, 2)
-        });
-    }
     Ok(rows)
 }
 
@@ -195,4 +191,18 @@ fn bench_classic(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
             threads: ctx.threads,
         })
         .collect())
+}
+
+/// The `#[ignore]`d tests behind the README's metric-training claim (see [`crate::acceptance`]).
+const ACCEPTANCE: &[AcceptanceTest] = &[AcceptanceTest {
+    package: "pbdl-metrics",
+    file: "train_full",
+    test: "trained_metric_on_unseen_kinds",
+    claim: "trained metric beats L2 and SSIM (Spearman) on at least one unseen kind, test seed 1000",
+    minutes: 8.0,
+    env: &[("RAYON_NUM_THREADS", "1")],
+}];
+
+fn stress_acceptance(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    crate::acceptance::run_tests(ctx, ACCEPTANCE)
 }

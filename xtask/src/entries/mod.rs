@@ -1,5 +1,6 @@
 //! Tour, bench and stress entries, one module per library crate. Each module has
 //! `pub fn tasks() -> CrateTasks`; [`crate::registry::all`] lists them in tour order.
+//! [`stability`] holds the time-step sweeps (`dt_limit`) that three simulator crates share.
 
 pub mod core;
 pub mod diffusion;
@@ -8,4 +9,5 @@ pub mod metrics;
 pub mod nets;
 pub mod optim;
 pub mod particles;
+pub mod stability;
 pub mod weather;

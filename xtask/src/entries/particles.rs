@@ -9,9 +9,11 @@
 //! * stress: the dam break to T = 10 (quick: T = 3) without NaN or leaked particles; strong
 //!   shock tubes stay finite with positive density and energy; the IISPH dam break to T = 10
 //!   with a converging pressure solve and at most 1% average density error.
+//! * stress `acceptance`: the README's IISPH claim from its `#[ignore]`d test ([`crate::acceptance`]).
 
+use crate::acceptance::AcceptanceTest;
 use crate::bench_schema::{format_seconds, median_seconds, BenchRow};
-use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
+use crate::registry::{CrateTasks, Entry, StressCheck, StressMeasure, TaskContext, TaskResult, TourOutcome, TourRow};
 use pbdl_core::viz::{self, ColorRange, FieldStyle, GifStyle, PlotStyle, Series};
 use pbdl_particles::neighbors::{CellList, Domain, NeighborList};
 use pbdl_particles::render;
@@ -74,9 +76,19 @@ pub fn tasks() -> CrateTasks {
                 run: stress_dam_break_iisph,
             },
             Entry {
+                name: "dt_limit",
+                about: "WCSPH dam break with its CFL number 0.25 x 1..4 (the solver refuses larger steps) to T = 2 (1 quick): largest multiple that stays finite, tight and inside.",
+                run: super::stability::particles_dt_limit,
+            },
+            Entry {
                 name: "strong_shocks",
                 about: "Shock tubes with pressure ratios up to 1e5 stay finite and positive.",
                 run: stress_shocks,
+            },
+            Entry {
+                name: "acceptance",
+                about: "The README's IISPH no-leak-to-T = 10 claim: runs its #[ignore]d test in release (seconds; quick too).",
+                run: stress_acceptance,
             },
         ],
     }
@@ -332,12 +344,14 @@ fn stress_dam_break_iisph(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             first_broken_step: broken,
             detail: error
                 .unwrap_or_else(|| format!("{} steps, {} Jacobi iterations", sim.steps(), sim.total_iterations())),
+            measure: (broken.is_none() && finite).then_some(StressMeasure::StableSteps(sim.steps())),
         },
         StressCheck {
             invariant: "average density error (compression) stays below 1%".into(),
             passed: dens_at.is_none(),
             first_broken_step: dens_at,
             detail: format!("max {max_comp:.2e}; {} particle centres beyond the nominal wall surface", sim.leaked()),
+            measure: None,
         },
     ])
 }
@@ -489,18 +503,21 @@ fn stress_dam_break(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             passed: nan_at.is_none(),
             first_broken_step: nan_at,
             detail: error.unwrap_or_else(|| format!("{} steps, t = {:.3} s", sim.steps(), sim.time())),
+            measure: nan_at.is_none().then_some(StressMeasure::StableSteps(sim.steps())),
         },
         StressCheck {
             invariant: "no fluid particle leaves the tank".into(),
             passed: leak_at.is_none(),
             first_broken_step: leak_at,
             detail: format!("{} of {} outside at the end", sim.leaked(), sim.n_fluid()),
+            measure: None,
         },
         StressCheck {
             invariant: "mean density error stays below 5%".into(),
             passed: dens_at.is_none(),
             first_broken_step: dens_at,
             detail: format!("max mean |rho/rho0 - 1| = {max_dens:.4}"),
+            measure: None,
         },
     ])
 }
@@ -526,7 +543,22 @@ fn stress_shocks(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
                 Ok(steps) => format!("{steps} steps to t = {t_end:.4}, case {k}"),
                 Err(e) => e.to_string(),
             },
+            measure: None,
         });
     }
     Ok(checks)
+}
+
+/// The `#[ignore]`d tests behind the README's IISPH claim (see [`crate::acceptance`]).
+const ACCEPTANCE: &[AcceptanceTest] = &[AcceptanceTest {
+    package: "pbdl-particles",
+    file: "iisph_tests",
+    test: "iisph_dam_break_to_t10_leaks_no_particle",
+    claim: "IISPH dam break to T = 10: 0 leaked (checked every 0.1), average compression <= 1%, wall crossing < 0.5 dx",
+    minutes: 0.2,
+    env: &[],
+}];
+
+fn stress_acceptance(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    crate::acceptance::run_tests(ctx, ACCEPTANCE)
 }

@@ -9,9 +9,12 @@
 //!   merges its rows.
 //! * stress `standin_years`: 50 simulated years of the stand-in climate in one run (2 with
 //!   `--quick`), checking finiteness and physical bounds at every stored time.
+//! * stress `acceptance`: the README's Williamson numbers from their `#[ignore]`d tests
+//!   ([`crate::acceptance`]); the T170 convergence bar is not met at day 14 (README), so it fails.
 
+use crate::acceptance::AcceptanceTest;
 use crate::bench_schema::{median_seconds, BenchRow};
-use crate::registry::{CrateTasks, Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
+use crate::registry::{CrateTasks, Entry, StressCheck, StressMeasure, TaskContext, TaskResult, TourOutcome, TourRow};
 use pbdl_weather::field::Values;
 use pbdl_weather::io::netcdf::{write, Flavour};
 use pbdl_weather::io::{read_truth, Selection};
@@ -34,11 +37,23 @@ pub fn tasks() -> CrateTasks {
             about: "RMSE/MAE/ACC of a year of hourly 32x64 float32 fields; reading the year from NetCDF-4 and classic files.",
             run: bench_score_year,
         }],
-        stress: vec![Entry {
-            name: "standin_years",
-            about: "50 simulated years of the stand-in climate (2 with --quick): finite and inside physical bounds.",
-            run: stress_standin_years,
-        }],
+        stress: vec![
+            Entry {
+                name: "standin_years",
+                about: "50 simulated years of the stand-in climate (2 with --quick): finite and inside physical bounds.",
+                run: stress_standin_years,
+            },
+            Entry {
+                name: "dt_limit",
+                about: "Stand-in climate at 1..18x its 1200 s step for 60 days (20 quick): largest multiple that stays finite and in bounds.",
+                run: super::stability::weather_dt_limit,
+            },
+            Entry {
+                name: "acceptance",
+                about: "The README's Williamson 2/6 table and T170 convergence: runs their #[ignore]d tests in release (about 25 min; quick: the Williamson 2 and 6 runs).",
+                run: stress_acceptance,
+            },
+        ],
     }
 }
 
@@ -134,6 +149,7 @@ fn stress_standin_years(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
         },
     );
     let blew_up = result.as_ref().err().map(|e| e.to_string());
+    let stable = blew_up.is_none() && out_of_bounds.is_none();
     Ok(vec![StressCheck {
         invariant: format!(
             "stand-in climate, {years} years in one run: finite, z in 2e4..8e4 m^2/s^2, t in 150..350 K"
@@ -146,6 +162,8 @@ fn stress_standin_years(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
                 z_range.0, z_range.1, t_range.0, t_range.1
             )
         }),
+        // In model steps (the outputs are 6-hourly).
+        measure: stable.then(|| StressMeasure::StableSteps(outputs * 6 * 3600 / ClimateConfig::default().dt as u64)),
     }])
 }
 
@@ -238,4 +256,36 @@ fn tour_standin_forecast(ctx: &TaskContext) -> TaskResult<TourOutcome> {
             .collect(),
         markdown,
     })
+}
+
+/// The `#[ignore]`d tests behind the README's Williamson numbers (see [`crate::acceptance`]).
+const ACCEPTANCE: &[AcceptanceTest] = &[
+    AcceptanceTest {
+        package: "pbdl-weather",
+        file: "williamson",
+        test: "test2_steady_zonal_flow_t63_t85",
+        claim: "Williamson 2 at T63/T85: l1, l2 < 1e-8, linf < 1e-7",
+        minutes: 2.0,
+        env: &[],
+    },
+    AcceptanceTest {
+        package: "pbdl-weather",
+        file: "williamson",
+        test: "test6_rossby_haurwitz_wave_day14",
+        claim: "Williamson 6 day 14 at T21/T42/T63: |phase error| < 10%, l2 < 0.05, phase speeds within 3%",
+        minutes: 3.0,
+        env: &[],
+    },
+    AcceptanceTest {
+        package: "pbdl-weather",
+        file: "williamson",
+        test: "test6_convergence_against_t170_reference",
+        claim: "Williamson 6 vs T170: errors fall T21 > T42 > T63 at days 7 and 14 (README: not met at day 14)",
+        minutes: 20.0,
+        env: &[],
+    },
+];
+
+fn stress_acceptance(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    crate::acceptance::run_tests(ctx, ACCEPTANCE)
 }

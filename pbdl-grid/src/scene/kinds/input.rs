@@ -43,13 +43,21 @@ impl FieldInput<'_> {
             2 if channels == 1 => c(t.unsqueeze(0).and_then(|t| t.unsqueeze(0)))?,
             3 => c(t.unsqueeze(0))?,
             4 => {
-                let n = t.dims()[0];
-                c(t.narrow(0, n - 1, 1))?
+                // A trajectory of zero frames has no last frame to start from.
+                let Some(last) = t.dims()[0].checked_sub(1) else {
+                    return Err(self.invalid(name, format!("the trajectory {:?} has no frames (T = 0)", t.dims())));
+                };
+                c(t.narrow(0, last, 1))?
             }
             _ => return Err(self.invalid(name, format!("expected [C, Y, X] or [T, C, Y, X], got {:?}", t.dims()))),
         };
         if t.dims()[1] != channels {
             return Err(self.invalid(name, format!("expected {channels} channel(s), got shape {:?}", t.dims())));
+        }
+        if t.elem_count() == 0 {
+            return Err(
+                self.invalid(name, format!("the field is empty (shape {:?}); give at least 1x1 cells", t.dims()))
+            );
         }
         if !max_abs(&t)?.is_finite() {
             return Err(self.invalid(name, "contains NaN or Inf".into()));

@@ -19,7 +19,7 @@
 //! also cut the U-Net baseline's width 8x, to 16).
 
 use crate::bench_schema::BenchRow;
-use crate::registry::{Entry, StressCheck, TaskContext, TaskResult, TourOutcome, TourRow};
+use crate::registry::{Entry, StressCheck, StressMeasure, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::Tensor;
 use pbdl_diffusion::acdm::benchmark::{stacked_gif, Benchmark};
 use pbdl_diffusion::acdm::data::{default_cache_dir, CylinderConfig, Sequence, CHANNELS};
@@ -224,6 +224,7 @@ fn stress(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
         passed: r.first_non_finite.is_none(),
         first_broken_step: r.first_non_finite.map(|s| s as u64),
         detail: format!("{} steps in {:.0} s, max |normalised value| {max:.2}", r.frames.dim(0)?, r.seconds),
+        measure: r.first_non_finite.is_none().then_some(StressMeasure::StableSteps(n as u64)),
     });
     // Out-of-range Reynolds numbers: the Re channel far outside the training range 150..900.
     let m = if ctx.quick { 5 } else { 100 };
@@ -239,6 +240,7 @@ fn stress(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             passed: r.first_non_finite.is_none(),
             first_broken_step: r.first_non_finite.map(|s| s as u64),
             detail: format!("normalised Re channel {v:.2}; {} steps in {:.1} s", r.frames.dim(0)?, r.seconds),
+            measure: None,
         });
     }
     // Bad configs and mismatched conditioning shapes: typed errors, no panics.
@@ -265,6 +267,7 @@ fn stress(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             typed.iter().filter(|&&x| x).count(),
             typed.len()
         ),
+        measure: None,
     });
     Ok(checks)
 }

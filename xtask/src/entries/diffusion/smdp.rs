@@ -277,6 +277,7 @@ fn physics_checks(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
         passed: bad.is_none(),
         first_broken_step: bad,
         detail: format!("max |x_T| = {:.3e}", end.iter().fold(0.0f64, |m, v| m.max(v.abs()))),
+        measure: None,
     });
 
     // 2. Explicit Euler on x' = -lambda |x| x overshoots past -x once lambda dt |x| > 2: stable
@@ -292,6 +293,7 @@ fn physics_checks(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
         passed: ok,
         first_broken_step: if ok { None } else { Some(0) },
         detail: format!("x_T from 0.95 limit: {below:.3?}; from 1.05 limit: {above:.3?}"),
+        measure: None,
     });
 
     // 3. The spectral heat step damps every mode (multipliers <= 1) and keeps the k = 0 one:
@@ -319,6 +321,7 @@ fn physics_checks(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
         passed: broken.is_none(),
         first_broken_step: broken,
         detail: format!("final energy {prev:.6e}, max mean drift {drift:.2e}"),
+        measure: None,
     });
     Ok(checks)
 }
@@ -352,7 +355,7 @@ fn sampler_checks(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
                 "max |x_0| = {:.3}",
                 traj.last().map(|s| s.iter().fold(0.0f64, |m, v| m.max(v.abs()))).unwrap_or(f64::NAN)
             ),
-        });
+         measure: None, });
     }
 
     Ok(checks)
