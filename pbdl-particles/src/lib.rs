@@ -53,3 +53,9 @@ pub use pbdl_core::stepper::Evolve;
 pub use riemann::GasState;
 pub use sph1d::{ShockTube, Sph1d, Sph1dParams};
 pub use wcsph::{DamBreak, Wcsph, WcsphParams};
+
+/// Largest smoothing length over particle spacing (`h_over_dx`, 1D `eta`) any solver accepts:
+/// beyond it every particle has thousands of neighbours, and walls and ghost layers (as thick as
+/// the kernel support) grow without bound (found by fuzzing the scene files: a huge value hung
+/// the wall construction or overflowed an index).
+pub const MAX_H_OVER_DX: f64 = 8.0;

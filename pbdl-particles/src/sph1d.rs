@@ -58,8 +58,11 @@ impl Default for Sph1dParams {
 impl Sph1dParams {
     fn validate(&self) -> Result<()> {
         let pos = |v: f64| v > 0.0 && v.is_finite();
-        if !pos(self.eta) {
-            return Err(Error::invalid("eta", format!("{}; use about 1.2", self.eta)));
+        if !(pos(self.eta) && self.eta <= crate::MAX_H_OVER_DX) {
+            return Err(Error::invalid(
+                "eta",
+                format!("{}; use about 1.2 (at most {})", self.eta, crate::MAX_H_OVER_DX),
+            ));
         }
         if !(self.alpha >= 0.0 && self.beta >= 0.0) {
             return Err(Error::invalid("alpha", "viscosity coefficients must be non-negative"));

@@ -277,10 +277,14 @@ impl<T: Real> Wcsph<T> {
         if !(phys.mass > 0.0 && phys.c0 > 0.0 && phys.rho0 > 0.0 && phys.dx > 0.0) {
             return Err(Error::invalid("physics", format!("{phys:?}; mass, c0, rho0 and dx must be positive")));
         }
-        if !(params.h_over_dx > 0.0 && params.h_over_dx.is_finite()) {
+        if !(params.h_over_dx > 0.0 && params.h_over_dx <= crate::MAX_H_OVER_DX) {
             return Err(Error::invalid(
                 "h_over_dx",
-                format!("{}; the smoothing length must be positive", params.h_over_dx),
+                format!(
+                    "{}; use a positive value up to {} (typically 1.2 to 2)",
+                    params.h_over_dx,
+                    crate::MAX_H_OVER_DX
+                ),
             ));
         }
         if !(params.alpha >= 0.0 && params.alpha.is_finite()) {

@@ -123,6 +123,7 @@ fn iisph_refuses_large_steps_and_bad_parameters() {
     assert!(matches!(err, Error::UnstableTimeStep { .. }), "{err}");
     for (p, field) in [
         (IisphParams { h_over_dx: 0.0, ..Default::default() }, "h_over_dx"),
+        (IisphParams { h_over_dx: 1e9, ..Default::default() }, "h_over_dx"),
         (IisphParams { tolerance: -1.0, ..Default::default() }, "tolerance"),
         (IisphParams { nu: -1.0, ..Default::default() }, "nu"),
     ] {

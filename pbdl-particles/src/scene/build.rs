@@ -6,6 +6,7 @@ use crate::iisph::Iisph;
 use crate::neighbors::Domain;
 use crate::sph1d::Sph1d;
 use crate::wcsph::{Wcsph, WcsphPhysics};
+use crate::MAX_H_OVER_DX;
 use pbdl_core::noise::{perlin_1d, perlin_2d};
 use pbdl_core::Real;
 
@@ -81,10 +82,6 @@ fn narrow2<T: Real>(v: &[[f64; 2]]) -> Vec<[T; 2]> {
     v.iter().map(|p| [T::c(p[0]), T::c(p[1])]).collect()
 }
 
-/// Largest smoothing length over spacing (`h_over_dx`, 1D `eta`): beyond it every particle has
-/// thousands of neighbours, and walls and ghosts (as thick as the kernel support) grow without
-/// bound.
-const MAX_H_OVER_DX: f64 = 8.0;
 /// Largest number of wall layers.
 const MAX_WALL_LAYERS: usize = 64;
 /// Most particles a scene may ask for (about 2^26; more cannot be stepped in memory anyway).
