@@ -6,6 +6,10 @@
 //! panic or a crash part-way leaves the old file untouched. On an error or a panic the
 //! temporary file is removed; only a killed process can leave one behind, and readers in
 //! pbdl ignore hidden `.tmp` files (see [`is_temp_file`]).
+//!
+//! For kill -9 tests, [`CRASH_HOLD_ENV`] makes one chosen write stop for good between its
+//! complete temporary file and the rename, so that a test can kill the process exactly there
+//! (see [`crate::train::crash`]).
 
 use crate::error::{Error, Result};
 use std::fs::{self, File, OpenOptions};
@@ -15,6 +19,15 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Distinguishes temporary files of concurrent writers within one process.
 static COUNTER: AtomicU64 = AtomicU64::new(0);
+
+/// Test hook for kill -9 tests: `<n>:<marker path>` makes the `n`-th atomic write of the
+/// process (counted from 0, across all files) stop after its temporary file is complete and
+/// synced, create the marker file, and wait there until the process is killed. Unset (the
+/// normal case) it costs one environment lookup per write.
+pub const CRASH_HOLD_ENV: &str = "PBDL_CRASH_TEST_HOLD";
+
+/// Atomic writes committed (or about to be) so far, for [`CRASH_HOLD_ENV`].
+static COMMITS: AtomicU64 = AtomicU64::new(0);
 
 /// Writes `path` atomically: `write` fills a buffered writer on a temporary file, which then
 /// replaces `path` in one rename.
@@ -128,6 +141,7 @@ fn commit(path: &Path, file: File, mut guard: TempGuard) -> Result<()> {
     // empty file under the final name.
     file.sync_all().map_err(|e| Error::io(path, e))?;
     drop(file);
+    crash_test_hold(path);
     let tmp = guard.0.take().expect("temporary path is present until commit");
     if let Err(e) = fs::rename(&tmp, path) {
         let _ = fs::remove_file(&tmp);
@@ -135,6 +149,31 @@ fn commit(path: &Path, file: File, mut guard: TempGuard) -> Result<()> {
     }
     sync_dir(&parent_dir(path));
     Ok(())
+}
+
+/// Atomic writes this process has committed (or is committing) so far: what a kill -9 test
+/// picks the write to interrupt from ([`CRASH_HOLD_ENV`]).
+pub fn atomic_write_count() -> u64 {
+    COMMITS.load(Ordering::Relaxed)
+}
+
+/// Where [`CRASH_HOLD_ENV`] names this write, announce it and wait to be killed.
+fn crash_test_hold(path: &Path) {
+    let n = COMMITS.fetch_add(1, Ordering::Relaxed);
+    let Some(spec) = std::env::var_os(CRASH_HOLD_ENV) else { return };
+    let spec = spec.to_string_lossy();
+    let Some((at, marker)) = spec.split_once(':') else { return };
+    if at.parse::<u64>().ok() != Some(n) {
+        return;
+    }
+    // The marker appears only after the temporary file is complete: the test kills after it.
+    // Written under another name and renamed, so that the test never reads it half-written.
+    let part = format!("{marker}.part");
+    if fs::write(&part, path.display().to_string()).is_ok() && fs::rename(&part, marker).is_ok() {
+        loop {
+            std::thread::sleep(std::time::Duration::from_secs(1));
+        }
+    }
 }
 
 fn parent_dir(path: &Path) -> PathBuf {

@@ -106,14 +106,72 @@ impl ScalarLog {
         Ok(log)
     }
 
+    /// Opens the log of a run that resumes at step `resume_at` (its checkpoint's step), like
+    /// [`ScalarLog::open`], but first cuts the file back to the rows of steps before
+    /// `resume_at`: the resumed run logs the later steps again, and the file then reads as if
+    /// the run had never stopped. A torn last line (the process was killed while appending
+    /// it) is dropped too, and columns left without values are removed. The cut file replaces
+    /// the old one atomically.
+    ///
+    /// ```
+    /// use pbdl_core::train::ScalarLog;
+    ///
+    /// let dir = tempfile::tempdir().unwrap();
+    /// let path = dir.path().join("loss.csv");
+    /// // Steps 0..3 logged, the last row torn by a kill; the checkpoint is at step 2.
+    /// std::fs::write(&path, "step,loss\n0,1.5\n1,1.25\n2,1.0\n3,0.7").unwrap();
+    /// let mut log = ScalarLog::open_resumed(&path, 2)?;
+    /// log.log(2, &[("loss", 1.0)])?;
+    /// assert_eq!(std::fs::read_to_string(&path).unwrap(), "step,loss\n0,1.5\n1,1.25\n2,1.0\n");
+    /// # Ok::<(), pbdl_core::Error>(())
+    /// ```
+    pub fn open_resumed(path: impl AsRef<Path>, resume_at: u64) -> Result<Self> {
+        let path = path.as_ref();
+        let format = LogFormat::from_path(path)?;
+        if !path.exists() {
+            return Self::open(path);
+        }
+        let bytes = fs::read(path).map_err(|e| Error::io(path, e))?;
+        let text = String::from_utf8_lossy(&bytes);
+        // Rows are appended one `write` each and end in a newline; a JSON array is only ever
+        // replaced whole.
+        let complete = match format {
+            LogFormat::JsonArray => &text[..],
+            _ => text.rfind('\n').map_or("", |i| &text[..=i]),
+        };
+        let mut log = Self::parse(path, format, complete)?;
+        let rows = log.rows.len();
+        log.rows.retain(|r| r.step < resume_at);
+        let used: Vec<bool> = (0..log.columns.len()).map(|i| log.rows.iter().any(|r| r.get(i).is_some())).collect();
+        let cut = rows != log.rows.len() || complete.len() != text.len() || used.contains(&false);
+        if used.contains(&false) {
+            let keep: Vec<usize> = (0..used.len()).filter(|&i| used[i]).collect();
+            log.columns = keep.iter().map(|&i| log.columns[i].clone()).collect();
+            for r in &mut log.rows {
+                r.values = keep.iter().map(|&i| r.get(i)).collect();
+            }
+        }
+        if cut {
+            write_atomic(path, &log.render(format))?;
+        }
+        log.header_len = log.columns.len();
+        log.file = Some((path.to_path_buf(), format));
+        Ok(log)
+    }
+
     /// Reads a log file (format by extension) into memory, not bound to the file.
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         let format = LogFormat::from_path(path)?;
         let text = fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::parse(path, format, &text)
+    }
+
+    /// Parses the text of the log file `path` (named in errors).
+    fn parse(path: &Path, format: LogFormat, text: &str) -> Result<Self> {
         let mut log = Self::new();
         match format {
-            LogFormat::Csv => log.parse_csv(path, &text)?,
+            LogFormat::Csv => log.parse_csv(path, text)?,
             LogFormat::JsonLines => {
                 for (i, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
                     let mut p = JsonParser::new(line);
@@ -123,7 +181,7 @@ impl ScalarLog {
             }
             LogFormat::JsonArray => {
                 if !text.trim().is_empty() {
-                    let recs = JsonParser::new(&text).array().map_err(|e| Error::Format {
+                    let recs = JsonParser::new(text).array().map_err(|e| Error::Format {
                         path: path.to_path_buf(),
                         reason: format!("not a JSON array of flat objects: {e}; fix or move the file"),
                     })?;
@@ -409,17 +467,10 @@ fn append(path: &Path, text: &str) -> Result<()> {
     f.write_all(text.as_bytes()).map_err(|e| Error::io(path, e))
 }
 
-/// Writes `text` to a sibling temporary file and renames it over `path`.
+/// Writes `text` atomically ([`crate::io::write_atomic`]: a hidden temporary file that readers
+/// and [`super::remove_interrupted_writes`] recognise, then one rename).
 fn write_atomic(path: &Path, text: &str) -> Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    {
-        let mut f = fs::File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
-        f.write_all(text.as_bytes()).map_err(|e| Error::io(&tmp, e))?;
-        f.sync_all().map_err(|e| Error::io(&tmp, e))?;
-    }
-    fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+    crate::io::write_atomic(path, |w| w.write_all(text.as_bytes()))
 }
 
 /// A scalar of a flat JSON object, numbers kept as their text.

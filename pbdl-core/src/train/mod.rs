@@ -12,6 +12,8 @@
 //! | [`guard`] | [`NanGuard`]: `Error::Diverged` at the first non-finite loss or gradient norm |
 //! | [`run`] | [`TrainLoop`]: the one training loop (resume from the latest checkpoint, lr schedule, clip, NaN guard, `loss.csv`, progress, atomic checkpoints, an after-step hook, an evaluation cadence kept out of the timings, a time budget; `TrainLoop::in_memory` for a fixed variable list); a method supplies its loss, or its whole update with `TrainLoop::run_custom` (hand-written adjoints, HIG, GANs) |
 //! | [`step`] | [`train_step`]: backward, clip, guard, update in one call |
+//! | [`state`] | [`save_train_checkpoint`] / [`load_train_checkpoint`]: weights and optimiser state in one atomic checkpoint, for exact resumes; [`remove_interrupted_writes`] |
+//! | [`crash`] | a kill -9 harness: a test kills a child training run at random times and inside checkpoint writes, resumes it, and compares with an uninterrupted run |
 //!
 //! A complete loop (the optimiser and schedule come from serde configs, as in a run file):
 //!
@@ -51,6 +53,7 @@
 //! ```
 
 pub mod clip;
+pub mod crash;
 pub mod flat;
 pub mod guard;
 pub mod log;
@@ -58,14 +61,19 @@ pub mod optim;
 pub mod progress;
 pub mod run;
 pub mod schedule;
+pub mod state;
 pub mod step;
 
 pub use clip::{clip_grad_norm, clip_grad_value, grad_norm, ClipConfig};
 pub use flat::{clip_in_place, global_norm, FlatAdam};
 pub use guard::NanGuard;
 pub use log::{LogFormat, LogRow, ScalarLog};
-pub use optim::{AdamConfig, AdamWConfig, Optim, OptimizerConfig, Sgd, SgdConfig};
+pub use optim::{AdamConfig, AdamW, AdamWConfig, Optim, OptimState, OptimizerConfig, Sgd, SgdConfig};
 pub use progress::Progress;
 pub use run::{AfterStep, Evaluate, Evaluation, LoopConfig, LoopReport, NoEval, NoHook, StopReason, TrainLoop, Update};
 pub use schedule::{LrScheduler, PlateauConfig, ScheduleConfig};
+pub use state::{
+    load_train_checkpoint, remove_checkpoint, remove_interrupted_writes, save_train_checkpoint, sorted_vars,
+    TrainCheckpoint, OPTIM_PREFIX,
+};
 pub use step::{train_step, StepInfo};

@@ -3,10 +3,14 @@
 //! candle-nn's `SGD` has no momentum, so [`Sgd`] implements PyTorch's SGD (momentum,
 //! dampening, Nesterov, L2 weight decay) itself. Everything implements candle-nn's
 //! [`Optimizer`] trait, whose `set_learning_rate` is how a [`super::LrScheduler`] drives it.
+//!
+//! [`AdamW`] is candle-nn's AdamW, operation for operation (the same numbers, bit for bit),
+//! with its moments and update count readable and settable: candle-nn keeps them private, and
+//! an exact resume has to checkpoint them ([`Optim::state`], [`Optim::set_state`]).
 
 use crate::{Error, Result};
 use candle_core::{backprop::GradStore, Tensor, Var};
-use candle_nn::{AdamW, Optimizer, ParamsAdamW};
+use candle_nn::{Optimizer, ParamsAdamW};
 use serde::{Deserialize, Serialize};
 
 /// Settings of Adam (no weight decay).
@@ -190,7 +194,7 @@ impl OptimizerConfig {
 /// trait: `step(&grads)`, `backward_step(&loss)`, `learning_rate()`, `set_learning_rate(lr)`.
 #[derive(Debug)]
 pub enum Optim {
-    /// Adam and AdamW (candle-nn's implementation).
+    /// Adam and AdamW (candle-nn's update, see [`AdamW`]).
     AdamW(AdamW),
     /// SGD with momentum.
     Sgd(Sgd),
@@ -225,6 +229,204 @@ impl Optimizer for Optim {
     }
 }
 
+/// What an optimiser carries from one update to the next besides its settings: the update
+/// count and per-variable slots (Adam's moments `m` and `v`, SGD's `momentum` buffer). Slots
+/// are indexed by the position of the variable in the optimiser ([`Optim::vars`]).
+#[derive(Clone, Debug)]
+pub struct OptimState {
+    /// The optimiser's kind, `"adamw"` (Adam included) or `"sgd"`; a state only loads into the
+    /// same kind.
+    pub kind: &'static str,
+    /// Updates taken so far (Adam's bias correction depends on it).
+    pub steps: u64,
+    /// `(variable index, slot name, tensor)`. A variable without a slot (SGD before its first
+    /// gradient) has none.
+    pub slots: Vec<(usize, &'static str, Tensor)>,
+}
+
+impl Optim {
+    /// The optimised variables, in the order of the slot indices of [`Optim::state`]
+    /// (non-float variables were left out when it was built).
+    pub fn vars(&self) -> Vec<Var> {
+        match self {
+            Optim::AdamW(o) => o.vars(),
+            Optim::Sgd(o) => o.vars().to_vec(),
+        }
+    }
+
+    /// The optimiser's state (copies of its tensors), for a checkpoint.
+    pub fn state(&self) -> Result<OptimState> {
+        match self {
+            Optim::AdamW(o) => o.state(),
+            Optim::Sgd(o) => o.state(),
+        }
+    }
+
+    /// Restores a state taken by [`Optim::state`] of an optimiser of the same kind over
+    /// variables of the same shapes. Slots absent from `state` are reset (zero moments, no
+    /// momentum buffer). Errors name the mismatch.
+    pub fn set_state(&mut self, state: &OptimState) -> Result<()> {
+        match self {
+            Optim::AdamW(o) => o.set_state(state),
+            Optim::Sgd(o) => o.set_state(state),
+        }
+    }
+}
+
+/// Checks `state` against an optimiser of `kind` over `vars`, slot names in `slots`.
+fn check_state(kind: &'static str, vars: &[Var], slots: &[&str], state: &OptimState) -> Result<()> {
+    let op = "Optim::set_state";
+    if state.kind != kind {
+        return Err(Error::invalid(
+            op,
+            "state",
+            format!(
+                "a {} state does not load into {kind}; resume with the optimiser the run was started with",
+                state.kind
+            ),
+        ));
+    }
+    for (i, slot, t) in &state.slots {
+        let Some(var) = vars.get(*i) else {
+            return Err(Error::invalid(
+                op,
+                "state",
+                format!("slot `{slot}` of variable {i}, but the optimiser has {}", vars.len()),
+            ));
+        };
+        if !slots.contains(slot) {
+            return Err(Error::invalid(
+                op,
+                "state",
+                format!("unknown {kind} slot `{slot}` (expected one of {slots:?})"),
+            ));
+        }
+        if t.dims() != var.dims() {
+            return Err(Error::invalid(
+                op,
+                "state",
+                format!("slot `{slot}` of variable {i} has shape {:?}, the variable {:?}", t.dims(), var.dims()),
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[derive(Debug)]
+struct VarAdamW {
+    var: Var,
+    first_moment: Var,
+    second_moment: Var,
+}
+
+/// Adam with decoupled weight decay: candle-nn's `AdamW`, operation for operation (so the
+/// same numbers bit for bit), with readable state for checkpoints ([`Optim::state`]).
+#[derive(Debug)]
+pub struct AdamW {
+    vars: Vec<VarAdamW>,
+    step_t: usize,
+    params: ParamsAdamW,
+}
+
+impl AdamW {
+    /// The settings.
+    pub fn params(&self) -> &ParamsAdamW {
+        &self.params
+    }
+
+    /// Replaces the settings (the moments stay).
+    pub fn set_params(&mut self, params: ParamsAdamW) {
+        self.params = params;
+    }
+
+    /// The optimised variables.
+    pub fn vars(&self) -> Vec<Var> {
+        self.vars.iter().map(|v| v.var.clone()).collect()
+    }
+
+    fn state(&self) -> Result<OptimState> {
+        let mut slots = Vec::with_capacity(2 * self.vars.len());
+        for (i, v) in self.vars.iter().enumerate() {
+            slots.push((i, "m", v.first_moment.as_tensor().copy()?));
+            slots.push((i, "v", v.second_moment.as_tensor().copy()?));
+        }
+        Ok(OptimState { kind: "adamw", steps: self.step_t as u64, slots })
+    }
+
+    fn set_state(&mut self, state: &OptimState) -> Result<()> {
+        let vars = self.vars();
+        check_state("adamw", &vars, &["m", "v"], state)?;
+        for v in &self.vars {
+            v.first_moment.set(&v.first_moment.zeros_like()?)?;
+            v.second_moment.set(&v.second_moment.zeros_like()?)?;
+        }
+        for (i, slot, t) in &state.slots {
+            let v = &self.vars[*i];
+            let target = if *slot == "m" { &v.first_moment } else { &v.second_moment };
+            target.set(&t.to_dtype(target.dtype())?.to_device(target.device())?)?;
+        }
+        self.step_t = usize::try_from(state.steps)
+            .map_err(|_| Error::invalid("Optim::set_state", "state", format!("{} updates", state.steps)))?;
+        Ok(())
+    }
+}
+
+impl Optimizer for AdamW {
+    type Config = ParamsAdamW;
+
+    fn new(vars: Vec<Var>, params: ParamsAdamW) -> candle_core::Result<Self> {
+        let vars = vars
+            .into_iter()
+            .filter(|var| var.dtype().is_float())
+            .map(|var| {
+                let first_moment = Var::zeros(var.shape(), var.dtype(), var.device())?;
+                let second_moment = Var::zeros(var.shape(), var.dtype(), var.device())?;
+                Ok(VarAdamW { var, first_moment, second_moment })
+            })
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        Ok(Self { vars, params, step_t: 0 })
+    }
+
+    fn learning_rate(&self) -> f64 {
+        self.params.lr
+    }
+
+    fn set_learning_rate(&mut self, lr: f64) {
+        self.params.lr = lr
+    }
+
+    // candle-nn 0.11's AdamW::step, expression for expression: any change of order changes the
+    // rounding, and pinned loss curves (and resumed runs) would no longer match.
+    fn step(&mut self, grads: &GradStore) -> candle_core::Result<()> {
+        self.step_t += 1;
+        let lr = self.params.lr;
+        let lambda = self.params.weight_decay;
+        let lr_lambda = lr * lambda;
+        let beta1 = self.params.beta1;
+        let beta2 = self.params.beta2;
+        let scale_m = 1f64 / (1f64 - beta1.powi(self.step_t as i32));
+        let scale_v = 1f64 / (1f64 - beta2.powi(self.step_t as i32));
+        for var in self.vars.iter() {
+            let theta = &var.var;
+            let m = &var.first_moment;
+            let v = &var.second_moment;
+            if let Some(g) = grads.get(theta) {
+                let next_m = ((m.as_tensor() * beta1)? + (g * (1.0 - beta1))?)?;
+                let next_v = ((v.as_tensor() * beta2)? + (g.sqr()? * (1.0 - beta2))?)?;
+                let m_hat = (&next_m * scale_m)?;
+                let v_hat = (&next_v * scale_v)?;
+                let next_theta = (theta.as_tensor() * (1f64 - lr_lambda))?;
+                let adjusted_grad = (m_hat / (v_hat.sqrt()? + self.params.eps)?)?;
+                let next_theta = (next_theta - (adjusted_grad * lr)?)?;
+                m.set(&next_m)?;
+                v.set(&next_v)?;
+                theta.set(&next_theta)?;
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Stochastic gradient descent with momentum, dampening, Nesterov and weight decay
 /// (PyTorch's `torch.optim.SGD`); see [`SgdConfig`].
 #[derive(Debug)]
@@ -252,6 +454,26 @@ impl Sgd {
     /// The optimised variables.
     pub fn vars(&self) -> &[Var] {
         &self.vars
+    }
+
+    fn state(&self) -> Result<OptimState> {
+        let mut slots = Vec::new();
+        for (i, b) in self.buffers.iter().enumerate() {
+            if let Some(b) = b {
+                slots.push((i, "momentum", b.copy()?));
+            }
+        }
+        Ok(OptimState { kind: "sgd", steps: 0, slots })
+    }
+
+    fn set_state(&mut self, state: &OptimState) -> Result<()> {
+        check_state("sgd", &self.vars, &["momentum"], state)?;
+        self.buffers = vec![None; self.vars.len()];
+        for (i, _, t) in &state.slots {
+            let var = &self.vars[*i];
+            self.buffers[*i] = Some(t.to_dtype(var.dtype())?.to_device(var.device())?);
+        }
+        Ok(())
     }
 }
 

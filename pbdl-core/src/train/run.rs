@@ -58,11 +58,13 @@
 //! # Ok::<(), pbdl_core::Error>(())
 //! ```
 
-use super::{train_step, ClipConfig, NanGuard, OptimizerConfig, Progress, ScalarLog, StepInfo};
-use crate::io::{latest_checkpoint, load_varmap, save_varmap, CheckpointMeta};
+use super::state::{load_train_checkpoint, remove_interrupted_writes, save_train_checkpoint, sorted_vars};
+use super::{train_step, ClipConfig, NanGuard, Optim, OptimizerConfig, Progress, ScalarLog, StepInfo, TrainCheckpoint};
+use crate::io::{latest_checkpoint, save_varmap, CheckpointMeta};
 use crate::Result;
 use candle_core::{Tensor, Var};
 use candle_nn::{Optimizer, VarMap};
+use std::cell::RefCell;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -132,6 +134,12 @@ pub struct LoopReport {
     pub evaluations: Vec<(u64, f64)>,
     /// Why the run stopped.
     pub stopped: StopReason,
+    /// Whether the run resumed with the optimiser state of its checkpoint ([`TrainLoop::run`]
+    /// from a checkpoint that holds one). `false` for a fresh run, for
+    /// [`TrainLoop::run_custom`], and for a checkpoint without optimiser state (written by
+    /// `save_varmap` or by pbdl before exact resume): its moments restart, so the resumed run
+    /// is close to an uninterrupted one but not equal to it.
+    pub optimizer_restored: bool,
 }
 
 /// What a method's own update step ([`TrainLoop::run_custom`]) reports.
@@ -236,6 +244,9 @@ pub struct TrainLoop<'a, H = NoHook, V = NoEval> {
     start: u64,
     /// `Some` for [`TrainLoop::in_memory`]; otherwise the `VarMap`'s variables.
     vars: Option<Vec<Var>>,
+    /// The checkpoint the run resumed from (its optimiser state goes into [`TrainLoop::run`]'s
+    /// optimiser).
+    resumed: Option<TrainCheckpoint>,
     hook: H,
     eval: V,
 }
@@ -252,15 +263,25 @@ impl<H, V> std::fmt::Debug for TrainLoop<'_, H, V> {
 
 impl<'a> TrainLoop<'a> {
     /// Opens a run: with a run directory that holds checkpoints, loads the latest into
-    /// `varmap` (the weights; optimiser moments restart) and continues after its step.
+    /// `varmap` and continues after its step. [`TrainLoop::run`] then also restores the
+    /// optimiser's moments and update count from it, and `loss.csv` is cut back to the steps
+    /// before it, so that a run killed at any point (`kill -9` included) and resumed gives the
+    /// same loss curve and weights, bit for bit, as one that never stopped, provided the
+    /// method's randomness follows from its seed and the step (see [`TrainLoop::start`]).
+    /// Leftovers of a killed checkpoint write are removed first
+    /// ([`super::remove_interrupted_writes`]): one trainer per run directory.
     pub fn resume(varmap: &'a VarMap, cfg: LoopConfig) -> Result<Self> {
         let mut start = 0;
+        let mut resumed = None;
         if let Some(dir) = &cfg.dir {
+            remove_interrupted_writes(dir)?;
             if let Some(path) = latest_checkpoint(dir)? {
-                start = load_varmap(&path, varmap)?.step;
+                let ck = load_train_checkpoint(&path, varmap)?;
+                start = ck.info.step;
+                resumed = Some(ck);
             }
         }
-        Ok(Self { varmap: Some(varmap), cfg, start, vars: None, hook: NoHook, eval: NoEval })
+        Ok(Self { varmap: Some(varmap), cfg, start, vars: None, resumed, hook: NoHook, eval: NoEval })
     }
 
     /// Opens an in-memory run over `vars`, variables kept outside any `VarMap` (a hand-built
@@ -276,15 +297,22 @@ impl<'a> TrainLoop<'a> {
                 format!("an in-memory run writes no files; got {}, use TrainLoop::resume with a VarMap", dir.display()),
             ));
         }
-        Ok(Self { varmap: None, cfg, start: 0, vars: Some(vars), hook: NoHook, eval: NoEval })
+        Ok(Self { varmap: None, cfg, start: 0, vars: Some(vars), resumed: None, hook: NoHook, eval: NoEval })
     }
 }
 
 impl<'a, H, V> TrainLoop<'a, H, V> {
-    /// The first step this run will take (the resumed checkpoint's step, or 0). Seed per-run
-    /// random streams from it so that a resumed run does not replay the same batches.
+    /// The first step this run will take (the resumed checkpoint's step, or 0). For an exact
+    /// resume, a method's random draws of step `k` must not depend on where the run started:
+    /// derive them from `(seed, k)`, or replay the draws of steps `0..start` before training.
     pub fn start(&self) -> u64 {
         self.start
+    }
+
+    /// The checkpoint this run resumed from, if any (its sidecar and the tensors stored besides
+    /// the variables and the optimiser state).
+    pub fn resumed(&self) -> Option<&TrainCheckpoint> {
+        self.resumed.as_ref()
     }
 
     /// Calls `hook(step, &info)` after each update (after its `loss.csv` row, before the
@@ -295,7 +323,15 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
     where
         F: FnMut(u64, &StepInfo) -> std::result::Result<(), E>,
     {
-        TrainLoop { varmap: self.varmap, cfg: self.cfg, start: self.start, vars: self.vars, hook, eval: self.eval }
+        TrainLoop {
+            varmap: self.varmap,
+            cfg: self.cfg,
+            start: self.start,
+            vars: self.vars,
+            resumed: self.resumed,
+            hook,
+            eval: self.eval,
+        }
     }
 
     /// Evaluates `eval(updates_done)` before the first update, every `every` updates and after
@@ -309,7 +345,15 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
         F: FnMut(u64) -> std::result::Result<f64, E>,
     {
         let eval = Evaluation { every, start: self.start, eval };
-        TrainLoop { varmap: self.varmap, cfg: self.cfg, start: self.start, vars: self.vars, hook: self.hook, eval }
+        TrainLoop {
+            varmap: self.varmap,
+            cfg: self.cfg,
+            start: self.start,
+            vars: self.vars,
+            resumed: self.resumed,
+            hook: self.hook,
+            eval,
+        }
     }
 
     /// Runs the updates `start..steps`: at each, sets the learning rate `lr_at(step)`, asks
@@ -317,7 +361,9 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
     /// and a [`NanGuard`] (a non-finite loss or gradient stops the run with
     /// [`crate::Error::Diverged`], the last checkpoint kept). Logs `loss`, `grad_norm` and
     /// `seconds` per step to `dir/loss.csv`, calls the [`TrainLoop::after_step`] hook, and
-    /// checkpoints `dir/step-<n>` with `meta(n)`.
+    /// checkpoints `dir/step-<n>` with `meta(n)`: the weights and the optimiser's state in one
+    /// atomic commit ([`super::save_train_checkpoint`]). The `VarMap`'s variables are trained in
+    /// the order of their names.
     pub fn run<E: From<crate::Error>>(
         mut self,
         optimizer: &OptimizerConfig,
@@ -331,23 +377,33 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
     {
         let vars = match (self.vars.take(), self.varmap) {
             (Some(vars), _) => vars,
-            (None, Some(varmap)) => varmap.all_vars(),
+            (None, Some(varmap)) => sorted_vars(varmap).into_iter().map(|(_, v)| v).collect(),
             (None, None) => Vec::new(),
         };
         let mut opt = optimizer.build(vars.clone())?;
+        let mut restored = false;
+        if let (Some(ck), Some(varmap)) = (self.resumed.take(), self.varmap) {
+            restored = ck.restore_optimizer(&mut opt, varmap)?;
+        }
         let clip = self.cfg.clip;
-        self.drive(meta, |step, guard| {
+        // Shared by the update and the checkpoint writer, which never run at the same time.
+        let opt = RefCell::new(opt);
+        let mut report = self.drive(meta, Some(&opt), |step, guard| {
+            let mut opt = opt.borrow_mut();
             opt.set_learning_rate(lr_at(step));
             let l = loss_at(step)?;
-            Ok((train_step(step, &l, &mut opt, &vars, &clip, guard)?, Vec::new()))
-        })
+            Ok((train_step(step, &l, &mut *opt, &vars, &clip, guard)?, Vec::new()))
+        })?;
+        report.optimizer_restored = restored;
+        Ok(report)
     }
 
     /// Runs the updates `start..steps` with the method's own update: `update(step, lr_at(step))`
     /// computes the loss and its gradient and applies the update itself (hand-written adjoints,
     /// second-order updates, a generator and a discriminator step). Everything else is as in
     /// [`TrainLoop::run`]: resume, time budget, evaluation, `loss.csv` (with the update's
-    /// extra columns), hook, progress and checkpoints (of the `VarMap`, where there is one).
+    /// extra columns), hook, progress and checkpoints (of the `VarMap`, where there is one; a
+    /// method's own optimiser state is not in them, so a resumed `run_custom` restarts it).
     /// The configured clipping is not applied (the method clips its own gradient). A
     /// non-finite loss or gradient norm stops the run with [`crate::Error::Diverged`] before
     /// that step is logged or checkpointed; an update should not apply a non-finite step (its
@@ -385,7 +441,7 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
         H: AfterStep<E>,
         V: Evaluate<E>,
     {
-        self.drive(meta, |step, guard| {
+        self.drive(meta, None, |step, guard| {
             let lr = lr_at(step);
             let u = update(step, lr)?;
             guard.check(step, u.loss, u.grad_norm)?;
@@ -398,6 +454,7 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
     fn drive<E: From<crate::Error>>(
         mut self,
         meta: impl Fn(u64) -> CheckpointMeta,
+        opt: Option<&RefCell<Optim>>,
         mut step_once: impl FnMut(u64, &mut NanGuard) -> std::result::Result<(StepInfo, Vec<(&'static str, f64)>), E>,
     ) -> std::result::Result<LoopReport, E>
     where
@@ -409,7 +466,8 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
         if let Some(dir) = &self.cfg.dir {
             guard = guard.with_checkpoint(dir.display().to_string());
             std::fs::create_dir_all(dir).map_err(|e| crate::Error::io(dir, e))?;
-            log = Some(ScalarLog::open(dir.join("loss.csv"))?);
+            // Rows after the checkpoint are logged again by this run.
+            log = Some(ScalarLog::open_resumed(dir.join("loss.csv"), self.start)?);
         }
         let mut report = LoopReport { resumed_from: self.start, ..Default::default() };
         let no_updates_left = self.start >= self.cfg.steps;
@@ -458,7 +516,11 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
             if let (Some(dir), Some(varmap)) = (&self.cfg.dir, self.varmap) {
                 let every = self.cfg.checkpoint_every;
                 if last || (every > 0 && done % every == 0) {
-                    save_varmap(dir.join(format!("step-{done}")), varmap, &meta(done))?;
+                    let path = dir.join(format!("step-{done}"));
+                    match opt {
+                        Some(opt) => save_train_checkpoint(path, varmap, &opt.borrow(), Vec::new(), &meta(done))?,
+                        None => save_varmap(path, varmap, &meta(done))?,
+                    };
                 }
             }
             if out_of_time && done < self.cfg.steps {
@@ -506,7 +568,8 @@ mod tests {
     }
 
     /// An interrupted run (NaN at step 12) keeps its step-10 checkpoint, and resuming continues
-    /// from step 10 to the end; the log holds every step taken.
+    /// from step 10 to the end; the log holds every step once (the rows after the checkpoint
+    /// are cut and logged again).
     #[test]
     fn diverged_run_keeps_its_checkpoint_and_resumes() {
         let dir = std::env::temp_dir().join(format!("pbdl_train_loop_test_{}", std::process::id()));
@@ -521,7 +584,9 @@ mod tests {
         assert!(w > 0.5 && w < 2.0, "moved towards 2: {w}");
         assert_eq!(latest_checkpoint(&dir).unwrap().unwrap(), dir.join("step-20.safetensors"));
         let log = ScalarLog::read(dir.join("loss.csv")).unwrap();
-        assert_eq!(log.column("loss").len(), 12 + 10, "12 rows before the NaN, 10 after resuming");
+        // Rows 10 and 11 of the first run were cut on resume and logged again: every step once.
+        let steps: Vec<u64> = log.column("loss").iter().map(|r| r.0).collect();
+        assert_eq!(steps, (0..20).collect::<Vec<_>>(), "10 rows kept before the checkpoint, 10 after resuming");
         std::fs::remove_dir_all(&dir).ok();
     }
 

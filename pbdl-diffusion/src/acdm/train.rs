@@ -163,9 +163,10 @@ pub fn loss(model: &Model, windows: &Tensor, seed: u64) -> Result<Tensor> {
 }
 
 /// Trains `model` on normalised sequences `[T, 4, ny, nx]`. With `dir`, resumes from its latest
-/// checkpoint (weights; Adam's moments restart), logs every update to `dir/loss.csv` and
-/// writes `dir/step-<n>` every
-/// `checkpoint_every` updates and at the end. Stops with [`Error::Core`] (diverged) on a
+/// checkpoint (weights, Adam's moments and update count; the batches of the earlier updates are
+/// replayed, so a run killed at any point resumes to the same losses and weights as one that
+/// never stopped), logs every update to `dir/loss.csv` and writes `dir/step-<n>` (weights and
+/// Adam state, atomically) every `checkpoint_every` updates and at the end. Stops with [`Error::Core`] (diverged) on a
 /// non-finite loss or gradient, leaving the last checkpoint intact.
 pub fn train(model: &Model, seqs: &[Tensor], config: &TrainConfig, dir: Option<&Path>) -> Result<TrainReport> {
     config.validate()?;
@@ -178,9 +179,16 @@ pub fn train(model: &Model, seqs: &[Tensor], config: &TrainConfig, dir: Option<&
         ..Default::default()
     };
     let run = TrainLoop::resume(model.varmap(), loop_cfg)?;
-    // A resumed run draws other windows than the first pass did.
-    let mut rng = pbdl_core::seed::rng(config.seed ^ run.start().wrapping_mul(0x2545_F491_4F6C_DD1D));
     let len = window_len(model.config().method);
+    // One stream of window and noise draws per seed. A resumed run replays the draws of the
+    // updates before its checkpoint (no network involved, so cheap) and then trains on exactly
+    // the batches an uninterrupted run would: with the weights and Adam state of the
+    // checkpoint, the resumed loss curve is the uninterrupted one, bit for bit.
+    let mut rng = pbdl_core::seed::rng(config.seed);
+    for _ in 0..run.start() {
+        sample_windows(seqs, len, config.batch, &mut rng)?;
+        let _noise_seed: u64 = rng.random();
+    }
     let meta = |step: u64| CheckpointMeta {
         step,
         seed: Some(config.seed),

@@ -2,9 +2,15 @@
 //! learning rate cut by `plateau_factor` after `plateau_patience` epochs without a better
 //! validation loss (Keras' ReduceLROnPlateau, min_delta 1e-4), early stopping after
 //! `stop_patience` epochs without improvement with the best weights restored (Keras'
-//! EarlyStopping with restore_best_weights). With a run directory, every epoch writes the
-//! weights and the whole training state atomically (`last`) and the best weights (`best`);
-//! a later call with the same directory resumes where it stopped.
+//! EarlyStopping with restore_best_weights). With a run directory, every epoch commits one
+//! training checkpoint `train-<epochs done>` (weights, Adam's moments and update count, the
+//! best weights so far, and the plateau / early-stopping state and history in its sidecar;
+//! older ones are then removed) and exports the weights as `last` (with the state) and, when
+//! they improved, `best`. A later call with the same directory resumes from the newest
+//! training checkpoint; since the sample order, leads and dropout masks follow from the seed
+//! and the epoch, a run killed at any point (`kill -9` included) resumes to the same history
+//! and weights, bit for bit, as one that never stopped. A directory written before training
+//! checkpoints existed (only `last` and `best`) still resumes, with Adam's moments restarted.
 
 use crate::error::{Error, Result};
 use crate::field::LeadForecast;
@@ -14,13 +20,21 @@ use crate::forecaster::Forecaster;
 use crate::grid::lat_weights;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{Optimizer, VarMap};
-use pbdl_core::io::{load_varmap, save_varmap, CheckpointMeta};
-use pbdl_core::train::{AdamConfig, OptimizerConfig, Progress};
+use pbdl_core::io::{list_checkpoints, load_varmap, save_checkpoint, save_varmap, CheckpointMeta};
+use pbdl_core::train::{
+    load_train_checkpoint, remove_checkpoint, remove_interrupted_writes, save_train_checkpoint, AdamConfig,
+    OptimizerConfig, Progress,
+};
 use rand::seq::SliceRandom;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+/// File-name prefix of the training checkpoints, `train-<epochs done>`.
+const TRAIN_CHECKPOINT: &str = "train-";
+/// Name prefix of the best-weights snapshot inside a training checkpoint.
+const BEST_PREFIX: &str = "best/";
 
 /// Training settings (defaults: the paper's batch 32, patience 2 and 5, factor 0.2).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -175,9 +189,24 @@ fn restore(varmap: &VarMap, snap: &HashMap<String, Tensor>) -> Result<()> {
     Ok(())
 }
 
+/// The newest training checkpoint of `dir`, if any.
+fn latest_train_checkpoint(dir: &Path) -> Result<Option<PathBuf>> {
+    let all = list_checkpoints(dir).map_err(core_err)?;
+    let is_train = |p: &PathBuf| p.file_name().is_some_and(|n| n.to_string_lossy().starts_with(TRAIN_CHECKPOINT));
+    Ok(all.into_iter().map(|(p, _)| p).rfind(is_train))
+}
+
+/// Writes the checkpoint `path` with `save`, removing the old one under that name first (so
+/// that a kill between the new weights and the new sidecar cannot pair them with the old ones).
+fn replace(path: &Path, save: impl FnOnce(&Path) -> pbdl_core::Result<pbdl_core::io::CheckpointInfo>) -> Result<()> {
+    remove_checkpoint(path).map_err(core_err)?;
+    save(path).map_err(core_err)?;
+    Ok(())
+}
+
 /// Trains `net` (its variables in `varmap`) on `train`, validating on `valid` after every
 /// epoch; returns the final state (history, best epoch). The best weights are in `varmap`
-/// afterwards.
+/// afterwards. See the [module docs](self) for the run directory and resuming.
 pub fn train(
     net: &dyn Forecaster,
     varmap: &VarMap,
@@ -200,14 +229,36 @@ pub fn train(
         return Err(Error::InvalidArgument(format!("no training samples in {} times", train.len())));
     }
     let ckpt = |name: &str| cfg.dir.as_ref().map(|d| d.join(name));
+    let meta = |state: &TrainState| CheckpointMeta {
+        step: state.epochs_done as u64,
+        seed: Some(cfg.seed),
+        config: serde_json::json!({ "state": state, "train": cfg, "spec": spec, "normalizer": norm, "net": net.describe() }),
+    };
+    let parse_state = |info: &pbdl_core::io::CheckpointInfo, path: &Path| -> Result<TrainState> {
+        serde_json::from_value(info.config.get("state").cloned().unwrap_or_default())
+            .map_err(|e| Error::InvalidArgument(format!("{}: not a pbdl-weather training state ({e})", path.display())))
+    };
     let mut state = TrainState::new(cfg.lr);
     let mut best: Option<HashMap<String, Tensor>> = None;
-    if let Some(last) = ckpt("last") {
-        if last.with_extension("json").is_file() {
+    let mut resumed = None;
+    if let Some(d) = &cfg.dir {
+        std::fs::create_dir_all(d).map_err(|source| Error::Io { file: d.clone(), source })?;
+        // Leftovers of a killed write: temporary files, weights whose sidecar never came.
+        remove_interrupted_writes(d).map_err(core_err)?;
+        if let Some(path) = latest_train_checkpoint(d)? {
+            let ck = load_train_checkpoint(&path, varmap).map_err(core_err)?;
+            state = parse_state(&ck.info, &path)?;
+            let snap: HashMap<String, Tensor> = ck
+                .extra
+                .iter()
+                .filter_map(|(k, t)| k.strip_prefix(BEST_PREFIX).map(|n| (n.to_string(), t.clone())))
+                .collect();
+            best = (!snap.is_empty()).then_some(snap);
+            resumed = Some(ck);
+        } else if let Some(last) = ckpt("last").filter(|l| l.with_extension("json").is_file()) {
+            // A run directory from before training checkpoints: weights and state, no moments.
             let info = load_varmap(&last, varmap).map_err(core_err)?;
-            state = serde_json::from_value(info.config.get("state").cloned().unwrap_or_default()).map_err(|e| {
-                Error::InvalidArgument(format!("{}: not a pbdl-weather training state ({e})", last.display()))
-            })?;
+            state = parse_state(&info, &last)?;
             let best_path = ckpt("best").expect("dir set");
             if best_path.with_extension("json").is_file() {
                 let current = snapshot(varmap)?;
@@ -216,13 +267,22 @@ pub fn train(
                 restore(varmap, &current)?;
             }
         }
-    }
-    if let Some(d) = &cfg.dir {
-        std::fs::create_dir_all(d).map_err(|source| Error::Io { file: d.clone(), source })?;
+        // A kill while `last` or `best` was being replaced leaves none: export them again.
+        if resumed.is_some() {
+            if let Some(p) = ckpt("last").filter(|p| !p.with_extension("json").exists()) {
+                replace(&p, |p| save_varmap(p, varmap, &meta(&state)))?;
+            }
+            if let (Some(p), Some(b)) = (ckpt("best").filter(|p| !p.with_extension("json").exists()), &best) {
+                replace(&p, |p| save_checkpoint(p, b, &CheckpointMeta::at(state.best_epoch as u64)))?;
+            }
+        }
     }
     let vars = pbdl_core::nn::batch_norm::trainable_vars(varmap);
     let mut opt =
         OptimizerConfig::Adam(AdamConfig { lr: state.lr, ..Default::default() }).build(vars).map_err(core_err)?;
+    if let Some(ck) = &resumed {
+        ck.restore_optimizer(&mut opt, varmap).map_err(core_err)?;
+    }
     let steps = cfg.steps_per_epoch.unwrap_or(inits.len().div_ceil(cfg.batch));
     let progress = Progress::new(((cfg.max_epochs.saturating_sub(state.epochs_done)) * steps) as u64);
     let mut step_count = 0u64;
@@ -261,7 +321,7 @@ pub fn train(
             state.stop_wait = 0;
             best = Some(snapshot(varmap)?);
             if let Some(p) = ckpt("best") {
-                save_varmap(&p, varmap, &CheckpointMeta::at(epoch as u64)).map_err(core_err)?;
+                replace(&p, |p| save_varmap(p, varmap, &CheckpointMeta::at(epoch as u64)))?;
             }
         } else {
             state.stop_wait += 1;
@@ -278,13 +338,19 @@ pub fn train(
         }
         state.stopped_early = state.stop_wait >= cfg.stop_patience;
         state.epochs_done += 1;
-        if let Some(p) = ckpt("last") {
-            let meta = CheckpointMeta {
-                step: state.epochs_done as u64,
-                seed: Some(cfg.seed),
-                config: serde_json::json!({ "state": state, "train": cfg, "spec": spec, "normalizer": norm, "net": net.describe() }),
-            };
-            save_varmap(&p, varmap, &meta).map_err(core_err)?;
+        if let Some(d) = &cfg.dir {
+            // The commit point of the epoch: weights, Adam state and best weights in one file,
+            // the plateau / early-stopping state in its sidecar.
+            let name = format!("{TRAIN_CHECKPOINT}{}", state.epochs_done);
+            let snap = best.iter().flatten().map(|(k, t)| (format!("{BEST_PREFIX}{k}"), t.clone())).collect();
+            save_train_checkpoint(d.join(&name), varmap, &opt, snap, &meta(&state)).map_err(core_err)?;
+            for (old, _) in list_checkpoints(d).map_err(core_err)? {
+                let stem = old.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+                if stem.starts_with(TRAIN_CHECKPOINT) && stem != name {
+                    remove_checkpoint(&old).map_err(core_err)?;
+                }
+            }
+            replace(&d.join("last"), |p| save_varmap(p, varmap, &meta(&state)))?;
         }
     }
     progress.finish();

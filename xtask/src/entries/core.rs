@@ -41,6 +41,11 @@ pub fn tasks() -> CrateTasks {
         stress: vec![
             Entry { name: "conv_fuzz", about: "Random conv configurations against a direct sum.", run: stress_conv_fuzz },
             Entry {
+                name: "crash_resume",
+                about: "kill -9 during training and inside checkpoint writes, 20 times, then resume: TrainLoop, ACDM and the weather forecaster reproduce the uninterrupted run bit for bit (release, about 3 min).",
+                run: stress_crash_resume,
+            },
+            Entry {
                 name: "sampling_extremes",
                 about: "Sampling at far-out coordinates stays finite and within the field's range.",
                 run: stress_sampling,
@@ -569,4 +574,37 @@ fn stress_grad_seeds(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             measure: None,
         },
     ])
+}
+
+/// The 20-kill crash/resume tests of each crate that trains from a run directory (the default
+/// test suite runs 3 kills each).
+const CRASH_RESUME: &[crate::acceptance::AcceptanceTest] = &[
+    crate::acceptance::AcceptanceTest {
+        package: "pbdl-core",
+        file: "crash_resume",
+        test: "kill_9_twenty_times_then_resume_exactly",
+        claim: "TrainLoop: 20 kill -9 (during training and inside checkpoint writes) then resume = the uninterrupted run, bit for bit; every checkpoint loads",
+        minutes: 1.0,
+        env: &[],
+    },
+    crate::acceptance::AcceptanceTest {
+        package: "pbdl-diffusion",
+        file: "crash_resume",
+        test: "acdm_kill_9_twenty_times_then_resume_exactly",
+        claim: "ACDM training: 20 kill -9 then resume = the uninterrupted run, bit for bit",
+        minutes: 1.0,
+        env: &[],
+    },
+    crate::acceptance::AcceptanceTest {
+        package: "pbdl-weather",
+        file: "crash_resume",
+        test: "forecaster_kill_9_twenty_times_then_resume_exactly",
+        claim: "weather forecaster: 20 kill -9 then resume = the uninterrupted run (weights, Adam state, plateau state), bit for bit",
+        minutes: 1.0,
+        env: &[],
+    },
+];
+
+fn stress_crash_resume(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    crate::acceptance::run_tests(ctx, CRASH_RESUME)
 }
