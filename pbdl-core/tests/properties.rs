@@ -15,11 +15,12 @@
 //! The proptest seed is fixed (deterministic CI) unless `PROPTEST_RNG_SEED` is set;
 //! `PROPTEST_CASES` overrides the case counts.
 
-use candle_core::{DType, Device, Tensor, Var};
+use candle_core::{DType, Device, Tensor};
 use pbdl_core::conv::{conv, conv_transpose, ConvParams, PaddingMode};
 use pbdl_core::fft::{irfft2, irfft3, rfft2, rfft3};
 use pbdl_core::sample::{grid_sample, resize2d, resize3d, spline_zoom, warp, Boundary, Resize};
 use pbdl_core::seed;
+use pbdl_core::testing::{adjoint_gap, adjoint_gap_by_backward, norm, vjp};
 use proptest::prelude::*;
 use proptest::test_runner::RngSeed;
 
@@ -41,35 +42,6 @@ const TOL: f64 = 1e-10;
 
 fn randn(shape: &[usize], s: u64) -> Tensor {
     seed::randn(shape, 0.0, 1.0, DType::F64, &Device::Cpu, s).unwrap()
-}
-
-fn dot(a: &Tensor, b: &Tensor) -> f64 {
-    (a * b).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap()
-}
-
-fn norm(a: &Tensor) -> f64 {
-    dot(a, a).sqrt()
-}
-
-/// `J^T y` of `f` at `x` by candle's autograd (the ops' hand-written backward).
-fn vjp(f: impl Fn(&Tensor) -> Tensor, x: &Tensor, y: &Tensor) -> Tensor {
-    let v = Var::from_tensor(x).unwrap();
-    let out = f(v.as_tensor());
-    let g = (out * y).unwrap().sum_all().unwrap().backward().unwrap();
-    g.get(v.as_tensor()).expect("the input gets a gradient").clone()
-}
-
-/// Relative violation of `<ax, y> = <x, aty>`.
-fn violation(ax: &Tensor, y: &Tensor, x: &Tensor, aty: &Tensor) -> f64 {
-    let (l, r) = (dot(ax, y), dot(x, aty));
-    (l - r).abs() / (norm(ax) * norm(y) + norm(x) * norm(aty)).max(f64::MIN_POSITIVE)
-}
-
-/// Relative violation of the adjoint identity of a linear `f`, `A^T` from its backward.
-fn adjoint_violation(f: impl Fn(&Tensor) -> Tensor, x: &Tensor, y: &Tensor) -> f64 {
-    let ax = f(x);
-    let aty = vjp(&f, x, y);
-    violation(&ax, y, x, &aty)
 }
 
 /// Largest `|sum(splat) - sum(y)|` over batch and channels: a splat `[b, c, spatial...]` of
@@ -124,8 +96,8 @@ fn conv_case<const N: usize>(
     let y = randn(yx.dims(), s ^ 2);
     let what = format!("x {xs:?} w {ws:?} {p:?}");
     // Backward for the input and for the weight (conv is bilinear).
-    let ex = adjoint_violation(|t| conv(t, &w, None, &p).unwrap(), &x, &y);
-    let ew = adjoint_violation(|t| conv(&x, t, None, &p).unwrap(), &w, &y);
+    let ex = adjoint_gap_by_backward(|t| conv(t, &w, None, &p).unwrap(), &x, &y);
+    let ew = adjoint_gap_by_backward(|t| conv(&x, t, None, &p).unwrap(), &w, &y);
     let mut worst = ex.max(ew);
     // Zero padding: the transposed convolution (PyTorch layout: the same weight tensor read as
     // [in, out / groups, k...]) with the output padding that restores the input size.
@@ -136,7 +108,7 @@ fn conv_case<const N: usize>(
             op[i] = xs[2 + i] + 2 * a.p - ((m - 1) * a.s + a.d * (a.k - 1) + 1);
         }
         let aty = conv_transpose(&y, &w, None, &p, op).unwrap();
-        worst = worst.max(violation(&yx, &y, &x, &aty));
+        worst = worst.max(adjoint_gap(&yx, &y, &x, &aty));
     }
     (worst, what)
 }
@@ -192,13 +164,13 @@ proptest! {
             let f = |t: &Tensor| grid_sample(t, &pts, bc).unwrap();
             let m = splat_mass_error(&vjp(f, &field, &y), &y);
             prop_assert!(m < 1e-12 * npts as f64, "2D splat changes the mass by {m:e}");
-            adjoint_violation(f, &field, &y)
+            adjoint_gap_by_backward(f, &field, &y)
         } else {
             let bc = [b(bx), b(by), b(bz)];
             let f = |t: &Tensor| grid_sample(t, &pts, bc).unwrap();
             let m = splat_mass_error(&vjp(f, &field, &y), &y);
             prop_assert!(m < 1e-12 * npts as f64, "3D splat changes the mass by {m:e}");
-            adjoint_violation(f, &field, &y)
+            adjoint_gap_by_backward(f, &field, &y)
         };
         prop_assert!(e < TOL, "grid_sample {dims}D {spatial:?}: {e:e}");
 
@@ -208,9 +180,9 @@ proptest! {
         let disp = (randn(&ds, s ^ 3) * 1.5).unwrap();
         let yw = randn(&fs, s ^ 4);
         let e = if dims == 2 {
-            adjoint_violation(|t| warp(t, &disp, [b(bx), b(by)]).unwrap(), &field, &yw)
+            adjoint_gap_by_backward(|t| warp(t, &disp, [b(bx), b(by)]).unwrap(), &field, &yw)
         } else {
-            adjoint_violation(|t| warp(t, &disp, [b(bx), b(by), b(bz)]).unwrap(), &field, &yw)
+            adjoint_gap_by_backward(|t| warp(t, &disp, [b(bx), b(by), b(bz)]).unwrap(), &field, &yw)
         };
         prop_assert!(e < TOL, "warp {dims}D {spatial:?}: {e:e}");
     }
@@ -231,13 +203,13 @@ proptest! {
         };
         let x = randn(&[2, 2, n_in[1], n_in[2]], s);
         let y = randn(&[2, 2, n_out[1], n_out[2]], s ^ 1);
-        let e = adjoint_violation(|t| resize2d(t, (n_out[1], n_out[2]), mode).unwrap(), &x, &y);
+        let e = adjoint_gap_by_backward(|t| resize2d(t, (n_out[1], n_out[2]), mode).unwrap(), &x, &y);
         prop_assert!(e < TOL, "resize2d {mode:?} {n_in:?} -> {n_out:?}: {e:e}");
         let x3 = randn(&[1, 2, n_in[0], n_in[1], n_in[2]], s ^ 2);
         let y3 = randn(&[1, 2, n_out[0], n_out[1], n_out[2]], s ^ 3);
-        let e = adjoint_violation(|t| resize3d(t, (n_out[0], n_out[1], n_out[2]), mode).unwrap(), &x3, &y3);
+        let e = adjoint_gap_by_backward(|t| resize3d(t, (n_out[0], n_out[1], n_out[2]), mode).unwrap(), &x3, &y3);
         prop_assert!(e < TOL, "resize3d {mode:?} {n_in:?} -> {n_out:?}: {e:e}");
-        let e = adjoint_violation(|t| spline_zoom(t, &n_out).unwrap(), &x3, &y3);
+        let e = adjoint_gap_by_backward(|t| spline_zoom(t, &n_out).unwrap(), &x3, &y3);
         prop_assert!(e < TOL, "spline_zoom {n_in:?} -> {n_out:?}: {e:e}");
     }
 
@@ -252,9 +224,9 @@ proptest! {
         let w = nx / 2 + 1;
         let x = randn(&[batch, ny, nx], s);
         let z = randn(&[batch, ny, w, 2], s ^ 1);
-        let e = adjoint_violation(|t| rfft2(t).unwrap(), &x, &z);
+        let e = adjoint_gap_by_backward(|t| rfft2(t).unwrap(), &x, &z);
         prop_assert!(e < TOL, "rfft2 {n:?}: {e:e}");
-        let e = adjoint_violation(|t| irfft2(t, nx).unwrap(), &z, &x);
+        let e = adjoint_gap_by_backward(|t| irfft2(t, nx).unwrap(), &z, &x);
         prop_assert!(e < TOL, "irfft2 {n:?}: {e:e}");
         let back = irfft2(&rfft2(&x).unwrap(), nx).unwrap();
         let r = norm(&(back - &x).unwrap()) / norm(&x);
@@ -262,9 +234,9 @@ proptest! {
 
         let x3 = randn(&[batch, nz, ny, nx], s ^ 2);
         let z3 = randn(&[batch, nz, ny, w, 2], s ^ 3);
-        let e = adjoint_violation(|t| rfft3(t).unwrap(), &x3, &z3);
+        let e = adjoint_gap_by_backward(|t| rfft3(t).unwrap(), &x3, &z3);
         prop_assert!(e < TOL, "rfft3 {n:?}: {e:e}");
-        let e = adjoint_violation(|t| irfft3(t, nx).unwrap(), &z3, &x3);
+        let e = adjoint_gap_by_backward(|t| irfft3(t, nx).unwrap(), &z3, &x3);
         prop_assert!(e < TOL, "irfft3 {n:?}: {e:e}");
         let back = irfft3(&rfft3(&x3).unwrap(), nx).unwrap();
         let r = norm(&(back - &x3).unwrap()) / norm(&x3);

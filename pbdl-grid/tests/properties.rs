@@ -14,8 +14,9 @@
 //! The proptest seed is fixed (deterministic CI) unless `PROPTEST_RNG_SEED` is set;
 //! `PROPTEST_CASES` overrides the case counts.
 
-use candle_core::{DType, Device, Tensor, Var};
+use candle_core::{DType, Device, Tensor};
 use pbdl_core::seed;
+use pbdl_core::testing::{adjoint_gap_by_backward, dot, norm};
 use pbdl_grid::grid3d::{self, BoxPressure, Grid3d, MacField3d, PoissonFft3d};
 use pbdl_grid::pressure::{
     make_incompressible, make_incompressible_masked, make_incompressible_masked_cg, solve_poisson, CgPreconditioner,
@@ -47,37 +48,12 @@ fn randn(shape: &[usize], s: u64) -> Tensor {
     seed::randn(shape, 0.0, 1.0, DType::F64, &Device::Cpu, s).unwrap()
 }
 
-fn dot(a: &Tensor, b: &Tensor) -> f64 {
-    (a * b).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap()
-}
-
-fn norm(a: &Tensor) -> f64 {
-    dot(a, a).sqrt()
-}
-
 fn sum(a: &Tensor) -> f64 {
     a.sum_all().unwrap().to_scalar::<f64>().unwrap()
 }
 
 fn max_abs(a: &Tensor) -> f64 {
     a.abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f64>().unwrap()
-}
-
-/// `J^T y` of `f` at `x` by candle's autograd, i.e. by the ops' hand-written backward.
-fn vjp(f: impl Fn(&Tensor) -> Tensor, x: &Tensor, y: &Tensor) -> Tensor {
-    let v = Var::from_tensor(x).unwrap();
-    let out = f(v.as_tensor());
-    let g = (out * y).unwrap().sum_all().unwrap().backward().unwrap();
-    g.get(v.as_tensor()).expect("the input gets a gradient").clone()
-}
-
-/// Adjoint identity of an affine `f`: `<f(x) - f(0), y> = <x, J^T y>`, relative to the scale
-/// `|f(x) - f(0)| |y| + |x| |J^T y|` of the two inner products. Returns the relative violation.
-fn adjoint_violation(f: impl Fn(&Tensor) -> Tensor, x: &Tensor, y: &Tensor) -> f64 {
-    let ax = (f(x) - f(&x.zeros_like().unwrap())).unwrap();
-    let aty = vjp(&f, x, y);
-    let (l, r) = (dot(&ax, y), dot(x, &aty));
-    (l - r).abs() / (norm(&ax) * norm(y) + norm(x) * norm(&aty)).max(f64::MIN_POSITIVE)
 }
 
 /// Velocity boundary sets that exercise every ghost rule (affine ones included: moving wall,
@@ -154,18 +130,18 @@ proptest! {
         let u = randn(&[batch, 2, ny, nx], s);
         let d = randn(&[batch, 1, ny, nx], s ^ 1);
         let div = |x: &Tensor| fd::divergence(&MacField::new(x.clone(), g, bc).unwrap()).unwrap().into_values();
-        let e = adjoint_violation(div, &u, &d);
+        let e = adjoint_gap_by_backward(div, &u, &d);
         prop_assert!(e < ADJ_TOL, "divergence {bc:?}: {e:e}");
         let grad = |x: &Tensor| {
             fd::gradient(&CenteredField::new(x.clone(), g, bc.pressure()).unwrap(), &bc).unwrap().into_values()
         };
-        let e = adjoint_violation(grad, &d, &u);
+        let e = adjoint_gap_by_backward(grad, &d, &u);
         prop_assert!(e < ADJ_TOL, "gradient {bc:?}: {e:e}");
         let sbc = scalar_bc(k);
         let lap = |x: &Tensor| fd::laplacian(&CenteredField::new(x.clone(), g, sbc).unwrap()).unwrap().into_values();
         let p = randn(&[batch, 2, ny, nx], s ^ 2);
         let q = randn(&[batch, 2, ny, nx], s ^ 3);
-        let e = adjoint_violation(lap, &p, &q);
+        let e = adjoint_gap_by_backward(lap, &p, &q);
         prop_assert!(e < ADJ_TOL, "laplacian {sbc:?}: {e:e}");
     }
 
@@ -213,12 +189,12 @@ proptest! {
         let scalar = |x: &Tensor| {
             advect::semi_lagrangian(&CenteredField::new(x.clone(), g, sbc).unwrap(), &vel, dt).unwrap().into_values()
         };
-        let e = adjoint_violation(scalar, &q, &y);
+        let e = adjoint_gap_by_backward(scalar, &q, &y);
         prop_assert!(e < ADJ_TOL, "scalar {sbc:?}, dt {dt}: {e:e}");
         let velocity = |x: &Tensor| {
             advect::semi_lagrangian(&MacField::new(x.clone(), g, bc).unwrap(), &vel, dt).unwrap().into_values()
         };
-        let e = adjoint_violation(velocity, &q, &y);
+        let e = adjoint_gap_by_backward(velocity, &q, &y);
         prop_assert!(e < ADJ_TOL, "velocity {bc:?}, dt {dt}: {e:e}");
     }
 
@@ -242,7 +218,7 @@ proptest! {
         let (sb, sc) = (solve(&b), solve(&c));
         let e = (dot(&sb, &c) - dot(&b, &sc)).abs() / (norm(&sb) * norm(&c) + norm(&b) * norm(&sc));
         prop_assert!(e < ADJ_TOL, "poisson ({}) {bc:?}: {e:e}", solver.method_name());
-        let e = adjoint_violation(solve, &b, &c);
+        let e = adjoint_gap_by_backward(solve, &b, &c);
         prop_assert!(e < ADJ_TOL, "poisson backward ({}) {bc:?}: {e:e}", solver.method_name());
 
         let sbc = scalar_bc(k);
@@ -252,7 +228,7 @@ proptest! {
         let (hb, hc) = (h(&b), h(&c));
         let e = (dot(&hb, &c) - dot(&b, &hc)).abs() / (norm(&hb) * norm(&c) + norm(&b) * norm(&hc));
         prop_assert!(e < ADJ_TOL, "implicit diffusion {sbc:?}: {e:e}");
-        let e = adjoint_violation(h, &b, &c);
+        let e = adjoint_gap_by_backward(h, &b, &c);
         prop_assert!(e < ADJ_TOL, "implicit diffusion backward {sbc:?}: {e:e}");
     }
 
@@ -270,9 +246,9 @@ proptest! {
         let (du, gp) = (div(&u), grad(&p));
         let e = (dot(&du, &p) + dot(&u, &gp)).abs() / (norm(&du) * norm(&p) + norm(&u) * norm(&gp));
         prop_assert!(e < ADJ_TOL, "<Du, p> + <u, Gp>: {e:e}");
-        let e = adjoint_violation(div, &u, &p);
+        let e = adjoint_gap_by_backward(div, &u, &p);
         prop_assert!(e < ADJ_TOL, "3D divergence backward: {e:e}");
-        let e = adjoint_violation(grad, &p, &u);
+        let e = adjoint_gap_by_backward(grad, &p, &u);
         prop_assert!(e < ADJ_TOL, "3D gradient backward: {e:e}");
         // Conservation: the divergence of a periodic field sums to 0 (telescoping differences).
         let sd = sum(&du).abs();
@@ -326,7 +302,7 @@ proptest! {
         let (pu, pw) = (lp(&u), lp(&w));
         let e = (dot(&pu, &w) - dot(&u, &pw)).abs() / (norm(&pu) * norm(&w) + norm(&u) * norm(&pw));
         prop_assert!(e < ADJ_TOL, "symmetry {lbc:?}: {e:e}");
-        let e = adjoint_violation(lp, &u, &w);
+        let e = adjoint_gap_by_backward(lp, &u, &w);
         prop_assert!(e < ADJ_TOL, "backward {lbc:?}: {e:e}");
     }
 

@@ -12,8 +12,9 @@
 //! seed is fixed (deterministic CI) unless `PROPTEST_RNG_SEED` is set; `PROPTEST_CASES`
 //! overrides the case counts.
 
-use candle_core::{DType, Device, Tensor, Var};
+use candle_core::{DType, Device, Tensor};
 use pbdl_core::seed;
+use pbdl_core::testing::{adjoint_gap, vjp};
 use pbdl_nets::pad::{pad_per_axis, PadMode};
 use pbdl_nets::resample::{space_to_depth, upsample_nearest2};
 use pbdl_nets::shuffle::{pixel_shuffle, pixel_unshuffle};
@@ -40,30 +41,8 @@ fn randn(shape: &[usize], s: u64) -> Tensor {
     seed::randn(shape, 0.0, 1.0, DType::F64, &Device::Cpu, s).unwrap()
 }
 
-fn dot(a: &Tensor, b: &Tensor) -> f64 {
-    (a * b).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap()
-}
-
-fn norm(a: &Tensor) -> f64 {
-    dot(a, a).sqrt()
-}
-
 fn max_abs(a: &Tensor) -> f64 {
     a.abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f64>().unwrap()
-}
-
-/// `J^T y` of `f` at `x` by candle's autograd.
-fn vjp(f: impl Fn(&Tensor) -> Tensor, x: &Tensor, y: &Tensor) -> Tensor {
-    let v = Var::from_tensor(x).unwrap();
-    let out = f(v.as_tensor());
-    let g = (out * y).unwrap().sum_all().unwrap().backward().unwrap();
-    g.get(v.as_tensor()).expect("the input gets a gradient").clone()
-}
-
-/// Relative violation of `<ax, y> = <x, aty>`.
-fn violation(ax: &Tensor, y: &Tensor, x: &Tensor, aty: &Tensor) -> f64 {
-    let (l, r) = (dot(ax, y), dot(x, aty));
-    (l - r).abs() / (norm(ax) * norm(y) + norm(x) * norm(aty)).max(f64::MIN_POSITIVE)
 }
 
 fn pad_mode(k: usize) -> PadMode {
@@ -83,7 +62,7 @@ proptest! {
         let y = randn(&[b, c, 2 * h, 2 * w], s ^ 1);
         let up = upsample_nearest2(&x).unwrap();
         let pool = space_to_depth(&y).unwrap().reshape((b, c, 4, h, w)).unwrap().sum(2).unwrap();
-        let e = violation(&up, &y, &x, &pool);
+        let e = adjoint_gap(&up, &y, &x, &pool);
         prop_assert!(e < TOL, "<up x, y> vs <x, pool y>: {e:e}");
         let g = vjp(|t| upsample_nearest2(t).unwrap(), &x, &y);
         let d = max_abs(&(g - &pool).unwrap()) / max_abs(&pool);
@@ -108,7 +87,7 @@ proptest! {
         let back = pixel_unshuffle(&sx, r).unwrap();
         prop_assert_eq!(max_abs(&(back - &x).unwrap()), 0.0, "unshuffle(shuffle(x)) != x");
         let uy = pixel_unshuffle(&y, r).unwrap();
-        let e = violation(&sx, &y, &x, &uy);
+        let e = adjoint_gap(&sx, &y, &x, &uy);
         prop_assert!(e < TOL, "<shuffle x, y> vs <x, unshuffle y>: {e:e}");
         let g = vjp(|t| pixel_shuffle(t, r).unwrap(), &x, &y);
         prop_assert_eq!(max_abs(&(g - &uy).unwrap()), 0.0, "backward of pixel_shuffle != unshuffle");
@@ -131,7 +110,7 @@ proptest! {
         let px = pad_per_axis(&x, &pads).unwrap();
         let y = randn(px.dims(), s ^ 1);
         let g = vjp(|t| pad_per_axis(t, &pads).unwrap(), &x, &y);
-        let e = violation(&px, &y, &x, &g);
+        let e = adjoint_gap(&px, &y, &x, &g);
         prop_assert!(e < TOL, "pad {spatial:?} {pads:?}: {e:e}");
         let mut crop = px.clone();
         for (k, &(before, _, _)) in pads.iter().enumerate() {
