@@ -68,7 +68,7 @@ fn weather_entries_are_registered() {
     assert_eq!(tasks.crate_name, "weather");
     assert_eq!(tasks.tour.iter().map(|e| e.name).collect::<Vec<_>>(), ["standin_forecast"]);
     assert_eq!(tasks.bench.iter().map(|e| e.name).collect::<Vec<_>>(), ["score_year"]);
-    assert_eq!(tasks.stress.iter().map(|e| e.name).collect::<Vec<_>>(), ["standin_years"]);
+    assert_eq!(tasks.stress.iter().map(|e| e.name).collect::<Vec<_>>(), ["standin_years", "dt_limit", "acceptance"]);
 }
 
 /// The tour entry end to end in quick mode (about 25 s in the test profile; the tour runs it in
