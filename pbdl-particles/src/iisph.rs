@@ -167,10 +167,15 @@ impl Default for IisphParams {
 impl IisphParams {
     fn validate(&self) -> Result<()> {
         let pos = |v: f64| v > 0.0 && v.is_finite();
-        if !(pos(self.h_over_dx) && self.h_over_dx <= crate::MAX_H_OVER_DX) {
+        if !(pos(self.h_over_dx) && (crate::MIN_H_OVER_DX..=crate::MAX_H_OVER_DX).contains(&self.h_over_dx)) {
             return Err(Error::invalid(
                 "h_over_dx",
-                format!("{}; use a positive value up to {} (typically 1.2 to 2)", self.h_over_dx, crate::MAX_H_OVER_DX),
+                format!(
+                    "{}; use a value in [{}, {}] (typically 1.2 to 2)",
+                    self.h_over_dx,
+                    crate::MIN_H_OVER_DX,
+                    crate::MAX_H_OVER_DX
+                ),
             ));
         }
         if !(pos(self.cfl) && self.cfl <= 1.0) {

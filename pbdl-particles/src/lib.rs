@@ -59,3 +59,8 @@ pub use wcsph::{DamBreak, Wcsph, WcsphParams};
 /// the kernel support) grow without bound (found by fuzzing the scene files: a huge value hung
 /// the wall construction or overflowed an index).
 pub const MAX_H_OVER_DX: f64 = 8.0;
+
+/// Smallest smoothing length over particle spacing any solver accepts: below it the kernel's
+/// support holds no neighbour, and the neighbour grid's cells (sized by the support) become so
+/// many that a small tank allocates gigabytes (found by fuzzing: `h_over_dx = 0.005`).
+pub const MIN_H_OVER_DX: f64 = 0.5;

@@ -58,10 +58,10 @@ impl Default for Sph1dParams {
 impl Sph1dParams {
     fn validate(&self) -> Result<()> {
         let pos = |v: f64| v > 0.0 && v.is_finite();
-        if !(pos(self.eta) && self.eta <= crate::MAX_H_OVER_DX) {
+        if !(pos(self.eta) && (crate::MIN_H_OVER_DX..=crate::MAX_H_OVER_DX).contains(&self.eta)) {
             return Err(Error::invalid(
                 "eta",
-                format!("{}; use about 1.2 (at most {})", self.eta, crate::MAX_H_OVER_DX),
+                format!("{}; use about 1.2 (between {} and {})", self.eta, crate::MIN_H_OVER_DX, crate::MAX_H_OVER_DX),
             ));
         }
         if !(self.alpha >= 0.0 && self.beta >= 0.0) {

@@ -277,12 +277,13 @@ impl<T: Real> Wcsph<T> {
         if !(phys.mass > 0.0 && phys.c0 > 0.0 && phys.rho0 > 0.0 && phys.dx > 0.0) {
             return Err(Error::invalid("physics", format!("{phys:?}; mass, c0, rho0 and dx must be positive")));
         }
-        if !(params.h_over_dx > 0.0 && params.h_over_dx <= crate::MAX_H_OVER_DX) {
+        if !(crate::MIN_H_OVER_DX..=crate::MAX_H_OVER_DX).contains(&params.h_over_dx) {
             return Err(Error::invalid(
                 "h_over_dx",
                 format!(
-                    "{}; use a positive value up to {} (typically 1.2 to 2)",
+                    "{}; use a value in [{}, {}] (typically 1.2 to 2)",
                     params.h_over_dx,
+                    crate::MIN_H_OVER_DX,
                     crate::MAX_H_OVER_DX
                 ),
             ));

@@ -83,3 +83,15 @@ fn overflowing_tank_size_is_a_typed_error() {
     assert!(text.contains("\na = 1e308"));
     assert_eq!(scene_field_error(&text), "dam_break.geometry.a");
 }
+
+/// IISPH dam break with `h_over_dx = 0.005` (the fuzzer's over-memory input, 312 bytes): the
+/// neighbour grid, sized by the support, asked for tens of millions of cells.
+#[test]
+fn tiny_smoothing_length_is_a_typed_error() {
+    let text = "name = \"tiny_h\"\nframes = 25\nframe_dt = 0.02\n\n[dam_break]\nsolver = \"iisph\"\n\n\
+                [dam_break.iisph]\nh_over_dx = 0.005\n";
+    assert_eq!(scene_field_error(text), "dam_break.iisph.h_over_dx");
+    assert!(pbdl_particles::DamBreak::default()
+        .build(pbdl_particles::WcsphParams { h_over_dx: 0.005, ..Default::default() })
+        .is_err());
+}

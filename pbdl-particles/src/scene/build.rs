@@ -6,7 +6,7 @@ use crate::iisph::Iisph;
 use crate::neighbors::Domain;
 use crate::sph1d::Sph1d;
 use crate::wcsph::{Wcsph, WcsphPhysics};
-use crate::MAX_H_OVER_DX;
+use crate::{MAX_H_OVER_DX, MIN_H_OVER_DX};
 use pbdl_core::noise::{perlin_1d, perlin_2d};
 use pbdl_core::Real;
 
@@ -90,8 +90,12 @@ const MAX_PARTICLES: usize = 1 << 26;
 const MAX_NOISE_CELLS: usize = 1 << 20;
 
 fn check_h_over_dx(name: &str, field: &str, h_over_dx: f64) -> Result<()> {
-    if h_over_dx > MAX_H_OVER_DX {
-        return Err(scene_err(name, field, format!("{h_over_dx}; use at most {MAX_H_OVER_DX} (typically 1.2 to 2)")));
+    if !(MIN_H_OVER_DX..=MAX_H_OVER_DX).contains(&h_over_dx) {
+        return Err(scene_err(
+            name,
+            field,
+            format!("{h_over_dx}; use a value in [{MIN_H_OVER_DX}, {MAX_H_OVER_DX}] (typically 1.2 to 2)"),
+        ));
     }
     Ok(())
 }
