@@ -128,6 +128,10 @@ enum Command {
         /// Particles: runs with seeds 0..N (noise scenes differ per seed), one .npz each.
         #[arg(long)]
         seeds: Option<usize>,
+        /// Particles with --seeds: only this job's seeds, `i/n` (0-based), written as data shards
+        /// (`item-<seed>.npz` + `manifest-i-of-n.json`; check with `cargo xtask data check`).
+        #[arg(long)]
+        shard: Option<pbdl_core::shard::Shard>,
         /// Particles: f32 or f64 (replaces the scene's `precision`, default f64).
         #[arg(long)]
         precision: Option<String>,
@@ -333,8 +337,8 @@ fn main() -> anyhow::Result<()> {
             anyhow::ensure!(fuzz.is_empty(), "--target, --seconds, --seed and --write-corpus are for `stress fuzz`");
             stress::run(krate.as_deref(), quick, entry.as_deref())
         }
-        Command::Sim { krate, scene, res, steps, seeds, precision, init, out } => {
-            sim::run(sim::SimArgs { krate, scene, res, steps, init, out, seeds, precision })
+        Command::Sim { krate, scene, res, steps, seeds, shard, precision, init, out } => {
+            sim::run(sim::SimArgs { krate, scene, res, steps, init, out, seeds, shard, precision })
         }
         Command::Metric { metric, a, b, weights, native, joint_batch, resize64 } => {
             metric::run(metric::MetricArgs { metric, a, b, weights, native, joint_batch, resize64 })

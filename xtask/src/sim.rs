@@ -23,6 +23,8 @@ pub struct SimArgs {
     pub out: Option<PathBuf>,
     /// Number of seeds (runs `0..seeds`, particles only).
     pub seeds: Option<usize>,
+    /// This job's seeds only, as data shards (particles with `seeds` only).
+    pub shard: Option<pbdl_core::shard::Shard>,
     /// `f32` or `f64`, replacing the scene's `precision` (particles only).
     pub precision: Option<String>,
 }
@@ -34,6 +36,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(args.krate == "grid", "unknown simulator `{}`; available: grid, particles", args.krate);
     anyhow::ensure!(args.seeds.is_none(), "--seeds is for `sim particles`");
+    anyhow::ensure!(args.shard.is_none(), "--shard is for `sim particles --seeds N`");
     anyhow::ensure!(args.precision.is_none(), "--precision is for `sim particles`; grid scenes run in f64");
     let mut scene = Scene::load(&args.scene)?;
     if let Some(n) = args.res {
@@ -98,13 +101,27 @@ fn run_particles(args: SimArgs) -> anyhow::Result<()> {
     };
     let seeds = args.seeds.unwrap_or(1).max(1);
     let out = args.out.unwrap_or_else(|| report::target_dir().join("sim").join(&scene.name));
-    for k in 0..seeds {
-        // One dispatch on the precision; the run itself is generic.
-        match scene.precision {
-            Precision::F64 => run_particle_seed::<f64>(&scene, k, init.as_ref(), &out)?,
-            Precision::F32 => run_particle_seed::<f32>(&scene, k, init.as_ref(), &out)?,
+    // One dispatch on the precision; the run itself is generic.
+    let run_seed = |k: usize, stem: &str| match scene.precision {
+        Precision::F64 => run_particle_seed::<f64>(&scene, k, init.as_ref(), &out, stem),
+        Precision::F32 => run_particle_seed::<f32>(&scene, k, init.as_ref(), &out, stem),
+    };
+    let Some(shard) = args.shard else {
+        for k in 0..seeds {
+            run_seed(k, &format!("{}_seed{k}", scene.name))?;
         }
-    }
+        return Ok(());
+    };
+    anyhow::ensure!(args.seeds.is_some(), "--shard splits the seeds of --seeds N among jobs; give --seeds");
+    anyhow::ensure!(init.is_none(), "--shard with --init: every seed would start from the same file");
+    // Item k is seed k of this scene: the manifests record the whole scene, so shards of
+    // different scenes or settings cannot be mixed in one directory.
+    let config = serde_json::json!({ "scene": serde_json::to_value(&scene)?, "seeds": seeds });
+    let m = pbdl_core::shard::generate_shard(&out, "pbdl-particles/sim", &config, seeds, shard, |k, path| {
+        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("item").to_string();
+        run_seed(k, &stem).map_err(|e| pbdl_core::Error::invalid("sim particles", "--shard", e.to_string()))
+    })?;
+    println!("sim: shard {} wrote seeds {:?} ({})", m.shard, shard.items(seeds), m.shard.manifest_name());
     Ok(())
 }
 
@@ -114,6 +131,7 @@ fn run_particle_seed<T: pbdl_core::Real>(
     k: usize,
     init: Option<&InitState>,
     out: &Path,
+    stem: &str,
 ) -> anyhow::Result<()> {
     use pbdl_particles::scene::{run_frames, write_trajectory};
     let mut sim = scene.build_as::<T>(k as u64, init)?;
@@ -133,7 +151,7 @@ fn run_particle_seed<T: pbdl_core::Real>(
     let frames = run_frames(scene, &mut sim, |f| progress.set_position(f as u64))?;
     progress.finish();
     let wall = started.elapsed().as_secs_f64();
-    let files = write_trajectory(&sim, &frames, out, &format!("{}_seed{k}", scene.name))?;
+    let files = write_trajectory(&sim, &frames, out, stem)?;
     println!(
         "sim: {} particles, {} steps in {:.2} s ({:.3} ms/step), {} frames",
         frames[0].mass.len(),
