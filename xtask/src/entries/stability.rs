@@ -3,9 +3,8 @@
 //! `dt_limit` of pbdl-grid, pbdl-particles and pbdl-weather (registered in their modules).
 //!
 //! A multiple passes when the run finishes, stays finite and meets the entry's accuracy bound;
-//! "refused" (the solver's own time-step check rejects it) counts as not passing. The summary
-//! check reports the largest passing multiple before the first failure (a later pass after a
-//! failure is printed but not counted: stability that comes and goes is not a limit to rely on).
+//! "refused" (the solver's own time-step check rejects it) counts as not passing. The sweep
+//! stops at the first failure; the summary check reports the largest multiple before it.
 
 use crate::registry::{StressCheck, StressMeasure, TaskContext, TaskResult};
 use candle_core::DType;
@@ -19,6 +18,24 @@ const MULTIPLES: [f64; 8] = [1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 16.0];
 
 /// One multiple's outcome: passed, and what was measured.
 type Outcome = (bool, String);
+
+/// Runs `run(m)` for each multiple in order and stops after the first that fails: a limit
+/// is found, larger multiples would only fail longer.
+fn sweep(
+    multiples: impl IntoIterator<Item = f64>,
+    mut run: impl FnMut(f64) -> TaskResult<Outcome>,
+) -> TaskResult<Vec<(f64, Outcome)>> {
+    let mut outcomes = Vec::new();
+    for m in multiples {
+        let outcome = run(m)?;
+        let failed = !outcome.0;
+        outcomes.push((m, outcome));
+        if failed {
+            break;
+        }
+    }
+    Ok(outcomes)
+}
 
 /// Turns per-multiple outcomes into one check each plus the summary.
 fn summarize(what: &str, bar: &str, outcomes: Vec<(f64, Outcome)>) -> Vec<StressCheck> {
@@ -68,17 +85,13 @@ pub fn grid_dt_limit(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
         let d = (-2.0 * nu * t).exp();
         move |x: f64, y: f64| [x.sin() * y.cos() * d, -x.cos() * y.sin() * d]
     };
-    let mut outcomes = Vec::new();
-    for m in MULTIPLES {
+    let outcomes = sweep(MULTIPLES, |m| {
         let steps = (t_end / (m * dt0)).ceil() as usize;
         let dt = t_end / steps as f64;
         // The constructor refuses a step beyond the scheme's diffusion limit (velocity-free).
         let ns = match NavierStokes::new(grid, bc, NavierStokesConfig { nu, dt, scheme: Scheme::Rk4 }) {
             Ok(ns) => ns,
-            Err(e) => {
-                outcomes.push((m, (false, format!("dt {dt:.3e}: refused by the solver: {e}"))));
-                break;
-            }
+            Err(e) => return Ok((false, format!("dt {dt:.3e}: refused by the solver: {e}"))),
         };
         let mut u = MacField::from_fn(grid, bc, DType::F32, exact(0.0))?;
         let checked = if ns.check(&u).is_ok() { "accepted" } else { "refused" };
@@ -106,12 +119,8 @@ pub fn grid_dt_limit(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
                 )
             }
         };
-        let stop = !outcome.0;
-        outcomes.push((m, outcome));
-        if stop {
-            break;
-        }
-    }
+        Ok(outcome)
+    })?;
     Ok(summarize("Taylor-Green RK4", "finite, rel. L2 error <= 5% at t_end", outcomes))
 }
 
@@ -124,8 +133,7 @@ pub fn particles_dt_limit(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
     let t_end = if ctx.quick { 1.0 } else { 2.0 };
     let scene = DamBreak::default();
     let base = WcsphParams::default();
-    let mut outcomes = Vec::new();
-    for m in MULTIPLES.into_iter().filter(|m| base.cfl * m <= 1.0) {
+    let outcomes = sweep(MULTIPLES.into_iter().filter(|m| base.cfl * m <= 1.0), |m| {
         let mut sim = scene.build(WcsphParams { cfl: base.cfl * m, ..base })?;
         let t_phys = scene.physical_time(t_end);
         let mut outcome = None;
@@ -163,12 +171,8 @@ pub fn particles_dt_limit(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
                 ),
             )
         });
-        let stop = !outcome.0;
-        outcomes.push((m, outcome));
-        if stop {
-            break;
-        }
-    }
+        Ok(outcome)
+    })?;
     Ok(summarize("WCSPH dam break", "finite, no leak, mean density error <= 5%", outcomes))
 }
 
@@ -178,8 +182,7 @@ pub fn particles_dt_limit(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
 /// years-long stress entry.
 pub fn weather_dt_limit(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
     let days = if ctx.quick { 20.0 } else { 60.0 };
-    let mut outcomes = Vec::new();
-    for m in [1.0, 1.5, 2.0, 3.0, 4.5, 6.0, 9.0, 18.0] {
+    let outcomes = sweep([1.0, 1.5, 2.0, 3.0, 4.5, 6.0, 9.0, 18.0], |m| {
         let cfg = ClimateConfig::default();
         let cfg = ClimateConfig { dt: cfg.dt * m, ..cfg };
         let (mut z, mut t) = ((f64::MAX, f64::MIN), (f64::MAX, f64::MIN));
@@ -206,11 +209,7 @@ pub fn weather_dt_limit(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
                 (ok, format!("dt {:.0} s, {days} days: z {:.0}..{:.0}, t {:.1}..{:.1}", cfg.dt, z.0, z.1, t.0, t.1))
             }
         };
-        let stop = !outcome.0;
-        outcomes.push((m, outcome));
-        if stop {
-            break;
-        }
-    }
+        Ok(outcome)
+    })?;
     Ok(summarize("stand-in climate", "finite, z in 2e4..8e4, t in 150..350 K", outcomes))
 }
