@@ -64,6 +64,7 @@ pub mod pressure;
 pub mod scalar_law;
 pub mod scene;
 mod scratch;
+pub mod spectral;
 pub mod stability;
 pub mod time_stepping;
 pub mod validation;
