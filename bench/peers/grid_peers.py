@@ -4,6 +4,9 @@ Cases, matching pbdl-grid's bench entries:
   * taylor_green: periodic [0, 2 pi]^2, nu = 0.01, t = 1, dt from CFL 0.5 on |u|max = 1, f32;
     error = relative L2 of the velocity against u = sin x cos y e^{-2 nu t},
     v = -cos x sin y e^{-2 nu t} (each staggered component at its own points).
+  * decaying_turbulence (JAX-CFD spectral only): the smooth vorticity of pbdl's `spectral` bench
+    to t = 1 at nu = 1e-3 (CFL 0.5 on |u| = 3), f32; error = relative L2 vorticity against JAX-CFD
+    itself at 3x the resolution and a 3x shorter step in f64.
   * lid_driven_cavity_re100: unit box, lid speed 1, nu = 0.01, run to t = 20 (steady);
     error = max over Ghia, Ghia & Shin (1982) centreline points of |u - Ghia|, |v - Ghia|.
     JAX-CFD rejects moving walls, so only PhiFlow runs it.
@@ -121,6 +124,46 @@ def jax_cfd_spectral_tgv(n):
     return seconds, rel_l2(pairs)
 
 
+def decaying_vorticity(x, y, xp):
+    """The initial vorticity of pbdl's `spectral` bench (xtask/src/entries/spectral.rs)."""
+    return xp.exp(1.5 * xp.cos(x) + xp.sin(y + 0.3)) - xp.exp(1.2 * xp.sin(x - 2.0 * y)) + xp.cos(3.0 * x + y)
+
+
+def jax_cfd_spectral_decaying(n, nu=1e-3, t_end=1.0, speed=3.0):
+    """Decaying turbulence from `decaying_vorticity` to t = 1 (CFL 0.5 on |u| = 3), relative L2
+    vorticity error against JAX-CFD itself at 3x the resolution and a 3x shorter step, in f64
+    (cell centres coincide at the odd ratio)."""
+    import jax
+    import jax.numpy as jnp
+    import jax_cfd.base as cfd
+    import jax_cfd.spectral as spectral
+
+    def run(m, dt, steps, dtype):
+        grid = cfd.grids.Grid((m, m), domain=((0, 2 * jnp.pi), (0, 2 * jnp.pi)))
+        x, y = grid.mesh()
+        w0 = decaying_vorticity(x, y, jnp)
+        w0 = (w0 - jnp.mean(w0)).astype(dtype)
+        eq = spectral.equations.NavierStokes2D(nu, grid, drag=0.0, smooth=True)
+        fn = jax.jit(cfd.funcutils.repeated(spectral.time_stepping.crank_nicolson_rk4(eq, dt), steps))
+        w_hat0 = jnp.fft.rfftn(w0)
+        out = fn(w_hat0)
+        jax.block_until_ready(out)
+        return fn, w_hat0, np.asarray(jnp.fft.irfftn(out, s=(m, m)), np.float64)
+
+    steps = math.ceil(t_end / (0.5 * (2 * math.pi / n) / speed))
+    dt = t_end / steps
+    fn, w_hat0, w = run(n, dt, steps, jnp.float32)
+    seconds = timed(lambda: jax.block_until_ready(fn(w_hat0))) / steps
+    jax.config.update("jax_enable_x64", True)
+    try:
+        _, _, ref = run(3 * n, dt / 3, 3 * steps, jnp.float64)
+    finally:
+        jax.config.update("jax_enable_x64", False)
+    # JAX-CFD's grid.mesh() is [x, y] indexed; the cell (i, j) of the coarse grid is (3i+1, 3j+1).
+    fine = ref[1::3, 1::3]
+    return seconds, float(np.sqrt(np.sum((w - fine) ** 2) / np.sum(fine ** 2)))
+
+
 # ---------------------------------------------------------------- PhiFlow
 def phiflow_modules(backend):
     if backend == "jax":
@@ -222,6 +265,9 @@ def main():
                       lambda n=n: jax_cfd_spectral_tgv(n)))
         cases.append(("taylor_green", "phiflow_jax_semi_lagrangian", n, "rel_l2_vs_analytic",
                       lambda n=n: phiflow_tgv(n, "jax")))
+    for n in [64, 128] if not args.quick else [32]:
+        cases.append(("decaying_turbulence", "jax_cfd_spectral_cn_rk4", n, "rel_l2_vorticity_vs_3x_finer",
+                      lambda n=n: jax_cfd_spectral_decaying(n)))
     for n in [32, 64] if not args.quick else [32]:
         cases.append(("taylor_green", "phiflow_numpy_semi_lagrangian", n, "rel_l2_vs_analytic",
                       lambda n=n: phiflow_tgv(n, "numpy")))

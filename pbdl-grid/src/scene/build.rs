@@ -5,6 +5,7 @@ use super::kinds::{self, FieldInput, PhysicsKind, Setup};
 use super::{Physics, Scene, SceneResult, TimeSpec};
 use crate::{CenteredField, Error, FluidState, Grid, MacField};
 use candle_core::{DType, Tensor};
+use std::sync::OnceLock;
 
 /// The evolving state of a simulation.
 #[derive(Clone, Debug)]
@@ -42,8 +43,10 @@ pub struct Simulation {
     scene: Scene,
     grid: Option<Grid>,
     kind: Box<dyn PhysicsKind>,
-    /// The kind's state as of the last step or `set_fields` (shared tensors, not a copy).
-    state: State,
+    /// The kind's state as of the last step or `set_fields` (shared tensors, not a copy), made
+    /// when first asked for: a kind whose public state is derived (the spectral solver's face
+    /// velocity) pays for it only when someone looks.
+    state: OnceLock<State>,
     operators: Vec<&'static str>,
     dt: f64,
     steps: usize,
@@ -94,8 +97,7 @@ impl Simulation {
         operators.dedup();
         let (steps, dt) = plan_steps(&setup, dt)?;
         let steps = kind.planned_steps(steps);
-        let state = kind.state();
-        Ok(Self { scene, grid, kind, state, operators, dt, steps, step: 0, dtype })
+        Ok(Self { scene, grid, kind, state: OnceLock::new(), operators, dt, steps, step: 0, dtype })
     }
 
     /// The operators this stepper runs, e.g. `["advect.flux_form", "diffuse.explicit",
@@ -131,7 +133,7 @@ impl Simulation {
 
     /// The current state.
     pub fn state(&self) -> &State {
-        &self.state
+        self.state.get_or_init(|| self.kind.state())
     }
 
     /// The grid (`None` for 1D scenes).
@@ -148,7 +150,7 @@ impl Simulation {
     /// unstable for the current state.
     pub fn step(&mut self) -> SceneResult<()> {
         self.kind.step(self.dt)?;
-        self.state = self.kind.state();
+        self.state = OnceLock::new();
         self.step += 1;
         Ok(())
     }
@@ -162,7 +164,9 @@ impl Simulation {
     /// (`u`, `temperature`, `phi` + `source`, `concentration`), or `velocity` (`[2, ny, nx]`,
     /// face values averaged to the centres), `velocity_mac` (the staggered values as stored:
     /// `u` at `((i+1) dx, (j+1/2) dy)`, `v` at `((i+1/2) dx, (j+1) dy)`) and `vorticity`
-    /// (`[1, ny, nx]`, at the cell corners `((i+1) dx, (j+1) dy)`).
+    /// (`[1, ny, nx]`, at the cell corners `((i+1) dx, (j+1) dy)`). `navier_stokes_spectral`
+    /// differs: its `velocity` and `vorticity` are the spectral solution at the cell centres, and
+    /// `velocity_mac` its spectral interpolation to the faces.
     pub fn fields(&self) -> SceneResult<Vec<(String, Tensor)>> {
         self.kind.fields()
     }
@@ -180,7 +184,7 @@ impl Simulation {
         let g = self.scene.grid;
         let input = FieldInput { arrays, scene: &self.scene.name, shape: (g.ny, g.nx), dtype: self.dtype };
         let used = self.kind.set_fields(&input)?;
-        self.state = self.kind.state();
+        self.state = OnceLock::new();
         Ok(used)
     }
 
@@ -188,12 +192,17 @@ impl Simulation {
     /// current state first). `on_step(step)` is called after every step (progress bars). The
     /// state is checked at every frame (see [`Simulation::check`]).
     pub fn run(&mut self, mut on_step: impl FnMut(usize)) -> SceneResult<Trajectory> {
-        self.run_observed(|_, k| on_step(k))
+        self.run_frames(|_, k| on_step(k))
     }
 
     /// [`Simulation::run`] with `on_step(state, step)` seeing the state after every step (probes,
     /// invariant checks).
     pub fn run_observed(&mut self, mut on_step: impl FnMut(&State, usize)) -> SceneResult<Trajectory> {
+        self.run_frames(|sim, k| on_step(sim.state(), k))
+    }
+
+    /// The loop of [`Simulation::run`]: `on_step` sees the simulation after every step.
+    fn run_frames(&mut self, mut on_step: impl FnMut(&Simulation, usize)) -> SceneResult<Trajectory> {
         let total = self.steps.saturating_sub(self.step);
         let frames = self.scene.time.frames.clamp(1, total + 1);
         let mut record: Vec<usize> = (0..frames)
@@ -222,7 +231,7 @@ impl Simulation {
         }
         for k in 1..=total {
             self.step()?;
-            on_step(&self.state, self.step);
+            on_step(self, self.step);
             if record.get(next) == Some(&k) {
                 push(self, &mut traj)?;
                 next += 1;

@@ -28,7 +28,7 @@
 //! ly = 6.283185307179586
 //! origin = [0.0, 0.0]               # coordinates of the lower-left corner (init formulas)
 //! [physics]
-//! kind = "navier_stokes"            # burgers_1d, burgers_2d, heat, poisson, advection_diffusion, navier_stokes, smoke, cylinder
+//! kind = "navier_stokes"            # burgers_1d, burgers_2d, heat, poisson, advection_diffusion, navier_stokes, navier_stokes_spectral, smoke, cylinder
 //! nu = 0.01
 //! [init]
 //! kind = "taylor_green"             # zero, uniform, taylor_green, random_modes, sine, gaussian
@@ -247,6 +247,21 @@ pub enum Physics {
         #[serde(default)]
         forcing: Option<Forcing>,
     },
+    /// Incompressible Navier-Stokes by the pseudo-spectral method (field `velocity` on the cell
+    /// centres): vorticity form, 2/3 dealiasing, implicit viscosity, the low-storage IMEX scheme
+    /// of `time.scheme` (`rk4` -> CN-RK4 Carpenter-Kennedy, `ssp_rk3` -> CN-RK3 Williamson; see
+    /// [`crate::spectral`]). Periodic boxes only; the keys are those of `navier_stokes`.
+    NavierStokesSpectral {
+        /// Viscosity (>= 0; 0 drops the viscous operator).
+        nu: f64,
+        /// Velocity boundary conditions: periodic on every face (the default); anything else is
+        /// refused with a typed error.
+        #[serde(default = "periodic")]
+        boundaries: Boundaries,
+        /// A body force. Default: none.
+        #[serde(default)]
+        forcing: Option<Forcing>,
+    },
     /// Buoyant smoke plume (density + velocity, Boussinesq buoyancy, inflow source).
     Smoke {
         /// Viscosity (>= 0).
@@ -380,6 +395,8 @@ pub const BUILTIN: &[(&str, &str)] = builtin!(
     "poisson",
     "advection_diffusion",
     "taylor_green",
+    "taylor_green_spectral",
+    "decaying_turbulence",
     "lid_driven_cavity",
     "kolmogorov",
     "smoke_plume",
@@ -515,9 +532,20 @@ impl Scene {
                     return bad("physics.velocity", "must be finite".into());
                 }
             }
-            Physics::NavierStokes { nu, boundaries, forcing } => {
+            Physics::NavierStokes { nu, boundaries, forcing }
+            | Physics::NavierStokesSpectral { nu, boundaries, forcing } => {
                 nonneg("physics.nu", *nu)?;
                 velocity_bc(boundaries)?;
+                if matches!(self.physics, Physics::NavierStokesSpectral { .. }) {
+                    if let Some((face, b)) = boundaries.faces().into_iter().find(|(_, b)| *b != Bc::Periodic) {
+                        return bad(
+                            &format!("physics.boundaries.{face}"),
+                            format!(
+                                "navier_stokes_spectral solves periodic boxes only, got {b:?}; use periodic faces or kind = \"navier_stokes\" for walls"
+                            ),
+                        );
+                    }
+                }
                 if let Some(Forcing::Kolmogorov { amplitude, wavenumber, drag }) = forcing {
                     if !amplitude.is_finite() {
                         return bad("physics.forcing.amplitude", format!("must be finite, got {amplitude}"));

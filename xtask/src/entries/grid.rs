@@ -73,6 +73,11 @@ pub fn tasks() -> CrateTasks {
         ],
         bench: vec![
             Entry {
+                name: "spectral",
+                about: "Pseudo-spectral Navier-Stokes (f32, CN-RK4): Taylor-Green 32^2..256^2 vs analytic, decaying turbulence 64^2/128^2 vs 3x finer; JAX-CFD's spectral rows from bench/peers/run.sh.",
+                run: super::spectral::bench_spectral,
+            },
+            Entry {
                 name: "taylor_green",
                 about:
                     "Taylor-Green vortex: time per Navier-Stokes step against the velocity error at t = 1, 32^2 to 256^2.",
@@ -109,6 +114,11 @@ pub fn tasks() -> CrateTasks {
                 name: "smoke_plume_long",
                 about: "Smoke plume, 10,000 steps at 128^2 (500 quick): finite, divergence bounded, density in [0, injected].",
                 run: stress_smoke,
+            },
+            Entry {
+                name: "spectral_high_re",
+                about: "Pseudo-spectral decaying turbulence at nu = 1e-5, 2,000 steps at 128^2 f32 (200 at 64^2 quick): finite, unforced energy never grows.",
+                run: super::spectral::stress_spectral_high_re,
             },
             Entry {
                 name: "dt_limit",

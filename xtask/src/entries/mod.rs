@@ -9,5 +9,6 @@ pub mod metrics;
 pub mod nets;
 pub mod optim;
 pub mod particles;
+pub mod spectral;
 pub mod stability;
 pub mod weather;

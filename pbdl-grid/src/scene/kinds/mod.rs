@@ -11,6 +11,7 @@ mod heat;
 mod input;
 mod momentum;
 mod navier_stokes;
+mod navier_stokes_spectral;
 mod poisson;
 mod scalar_law;
 mod setup;
@@ -72,6 +73,9 @@ pub(crate) fn build(setup: &Setup<'_>) -> SceneResult<(Box<dyn PhysicsKind>, f64
         Physics::Burgers2d { nu, boundaries } => boxed(momentum::Burgers2dKind::build(setup, *nu, boundaries)?),
         Physics::NavierStokes { nu, boundaries, forcing } => {
             boxed(navier_stokes::NavierStokesKind::build(setup, *nu, boundaries, forcing.as_ref())?)
+        }
+        Physics::NavierStokesSpectral { nu, forcing, .. } => {
+            boxed(navier_stokes_spectral::SpectralKind::build(setup, *nu, forcing.as_ref())?)
         }
         Physics::Smoke { nu, buoyancy, boundaries, source, advection } => {
             boxed(smoke::build(setup, *nu, *buoyancy, boundaries, source, *advection)?)
