@@ -73,7 +73,16 @@ def rel_l2(pairs):
 
 
 # ---------------------------------------------------------------- JAX-CFD
+def jax_f32():
+    """JAX-CFD's rows run in f32, as pbdl's: PhiFlow's JAX backend switches `jax_enable_x64` on
+    for the whole process when it first runs, which made every later JAX-CFD row f64 (found on
+    2026-11-27: the 64^2+ spectral errors of 1e-10 were f64 numbers)."""
+    import jax
+    jax.config.update("jax_enable_x64", False)
+
+
 def jax_cfd_fv_tgv(n):
+    jax_f32()
     import jax
     import jax.numpy as jnp
     import jax_cfd.base as cfd
@@ -99,6 +108,7 @@ def jax_cfd_fv_tgv(n):
 
 
 def jax_cfd_spectral_tgv(n):
+    jax_f32()
     import jax
     import jax.numpy as jnp
     import jax_cfd.base as cfd
@@ -150,6 +160,7 @@ def jax_cfd_spectral_decaying(n, nu=1e-3, t_end=1.0, speed=3.0):
         jax.block_until_ready(out)
         return fn, w_hat0, np.asarray(jnp.fft.irfftn(out, s=(m, m)), np.float64)
 
+    jax_f32()
     steps = math.ceil(t_end / (0.5 * (2 * math.pi / n) / speed))
     dt = t_end / steps
     fn, w_hat0, w = run(n, dt, steps, jnp.float32)

@@ -2,7 +2,8 @@
 //! buoyancy and inflow, optional implicit viscosity, obstacles, pressure projection.
 //!
 //! One step (PhiFlow's smoke-plume order):
-//! 1. density: advect (MacCormack by default), add the inflow `dt * rate * mask`;
+//! 1. density: advect (MacCormack by default; [`Advection::Conservative`] for mass conserved to
+//!    round-off), add the inflow `dt * rate * mask`;
 //! 2. velocity: advect by itself (MacCormack by default), add `dt * buoyancy(density)`;
 //! 3. implicit viscosity `(I - nu dt L)^-1` when `nu > 0`;
 //! 4. velocity source (e.g. an inlet profile), when one was given;
@@ -11,7 +12,8 @@
 //! A [`Fluid`] is *built* once from a [`FluidConfig`] and holds only what it needs: no density
 //! operators without density, no diffusion solve at `nu = 0`, no mask without obstacles;
 //! [`Fluid::operators`] lists them. Semi-Lagrangian and MacCormack advection (the limiter keeps
-//! it bounded) and backward-Euler diffusion are unconditionally stable, so
+//! it bounded), conservative density transport (sub-cycled to its CFL limit) and backward-Euler
+//! diffusion are unconditionally stable, so
 //! [`Fluid::stable_time_step`] is infinite for them; [`Fluid::cfl`] reports the CFL number for
 //! accuracy control. [`Advection::CentralRk4`] replaces steps 2-3 for the velocity by the
 //! second-order central flux form with explicit viscosity and RK4 (a projection, with the
@@ -19,7 +21,7 @@
 //! every step checks (typed [`Error::Unstable`]). Every part is differentiable (hand-written adjoints), including with respect to the
 //! inflow rate and the initial state.
 
-use crate::advect::{mac_cormack, semi_lagrangian, Advected, MomentumRhs};
+use crate::advect::{conservative, mac_cormack, semi_lagrangian, Advected, MomentumRhs};
 use crate::diffuse::ImplicitDiffusion;
 use crate::field::{CenteredField, MacField};
 use crate::forcing::{buoyancy, DensitySource, VelocitySource};
@@ -45,6 +47,11 @@ pub enum Advection {
     /// a projection after every stage (no numerical diffusion, but a stable time step that
     /// [`Fluid::step`] checks).
     CentralRk4,
+    /// Density only: finite-volume flux form with flux-corrected transport
+    /// ([`crate::advect::conservative()`]): the density's mass changes only by the inflow (to
+    /// round-off), no new extrema for the projected velocity, second order where smooth,
+    /// sub-cycled internally to its CFL limit (no time-step limit for the stepper).
+    Conservative,
 }
 
 /// Parameters of a [`Fluid`] stepper. Optional parts are `None` / empty.
@@ -59,7 +66,7 @@ pub struct FluidConfig {
     /// Velocity advection. Default MacCormack.
     #[serde(default)]
     pub advection: Advection,
-    /// Density advection. Default MacCormack.
+    /// Density advection (`semi_lagrangian`, `mac_cormack`, `conservative`). Default MacCormack.
     #[serde(default)]
     pub density_advection: Advection,
     /// Boussinesq coefficient `beta` (force `beta rho` along +y); needs a density.
@@ -137,7 +144,17 @@ impl Fluid {
         if config.density_advection == Advection::CentralRk4 {
             return Err(Error::Invalid {
                 field: "density_advection",
-                reason: "central_rk4 is for the velocity; use semi_lagrangian or mac_cormack for the density".into(),
+                reason: "central_rk4 is for the velocity; use semi_lagrangian, mac_cormack or conservative for the \
+                         density"
+                    .into(),
+            });
+        }
+        if config.advection == Advection::Conservative {
+            return Err(Error::Invalid {
+                field: "advection",
+                reason: "conservative transport is for the density (a cell-centred scalar); use semi_lagrangian, \
+                         mac_cormack or central_rk4 for the velocity"
+                    .into(),
             });
         }
         if density_bc.is_none() && (config.buoyancy.is_some() || config.inflow.is_some()) {
@@ -158,6 +175,8 @@ impl Fluid {
             (Advection::SemiLagrangian, _) => "advect.semi_lagrangian(velocity)",
             (Advection::MacCormack, _) => "advect.mac_cormack(velocity)",
             (Advection::CentralRk4, _) => "advect.flux_form(velocity)",
+            // Refused above for the velocity.
+            (Advection::Conservative, _) => "advect.conservative(density)",
         };
         if density_bc.is_some() {
             operators.push(name(config.density_advection, "density"));
@@ -298,7 +317,10 @@ impl Fluid {
         let dt = self.config.dt;
         let density = match (&state.density, self.density_bc) {
             (Some(rho), Some(_)) => {
-                let mut r = advect(rho, u, dt, self.config.density_advection)?;
+                let mut r = match self.config.density_advection {
+                    Advection::Conservative => conservative(rho, u, dt)?,
+                    scheme => advect(rho, u, dt, scheme)?,
+                };
                 if let Some(src) = &self.source {
                     let rate = inflow_rate.ok_or_else(|| Error::Invalid {
                         field: "inflow_rate",
@@ -386,5 +408,8 @@ fn advect<F: Advected>(q: &F, u: &MacField, dt: f64, scheme: Advection) -> Resul
         Advection::SemiLagrangian => semi_lagrangian(q, u, dt),
         Advection::MacCormack => mac_cormack(q, u, dt),
         Advection::CentralRk4 => unreachable!("refused at build time for densities, handled in step for velocities"),
+        Advection::Conservative => {
+            unreachable!("refused at build time for velocities, handled in step for densities")
+        }
     }
 }

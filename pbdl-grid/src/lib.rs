@@ -11,7 +11,7 @@
 //! | [`boundary`] | [`Bc`] per face (periodic, no-slip, free-slip, moving wall, inflow, outflow), [`Boundaries`], [`ScalarBoundaries`] |
 //! | [`field`] | [`CenteredField`], [`MacField`]: a tensor + grid + boundaries, staggering in the type |
 //! | [`fd`] | [`fd::divergence`], [`fd::gradient`], [`fd::laplacian`] |
-//! | [`advect`] | [`advect::flux_form`]: second-order central flux-form advection of a MAC velocity; [`advect::semi_lagrangian`], [`advect::mac_cormack`] for scalars and velocities |
+//! | [`advect`] | [`advect::flux_form`]: second-order central flux-form advection of a MAC velocity; [`advect::semi_lagrangian`], [`advect::mac_cormack`] for scalars and velocities; [`advect::conservative()`]: flux-corrected transport of scalars (mass to round-off, no new extrema) |
 //! | [`diffuse`] | [`diffuse::explicit`]: viscous tendency `nu lap u`; [`diffuse::implicit`] / [`diffuse::ImplicitDiffusion`]: backward Euler, factored once |
 //! | [`pressure`] | [`PressureSolver`] (FFT when periodic, sparse Cholesky factored once otherwise), [`pressure::make_incompressible`], [`pressure::solve_poisson`] |
 //! | [`time_stepping`] | [`ButcherTableau`] as data (RK4, SSP-RK3, forward Euler), [`time_stepping::projected_runge_kutta`] |

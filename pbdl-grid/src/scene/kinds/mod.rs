@@ -77,8 +77,8 @@ pub(crate) fn build(setup: &Setup<'_>) -> SceneResult<(Box<dyn PhysicsKind>, f64
         Physics::NavierStokesSpectral { nu, forcing, .. } => {
             boxed(navier_stokes_spectral::SpectralKind::build(setup, *nu, forcing.as_ref())?)
         }
-        Physics::Smoke { nu, buoyancy, boundaries, source, advection } => {
-            boxed(smoke::build(setup, *nu, *buoyancy, boundaries, source, *advection)?)
+        Physics::Smoke { nu, buoyancy, boundaries, source, advection, density_advection } => {
+            boxed(smoke::build(setup, *nu, *buoyancy, boundaries, source, *advection, *density_advection)?)
         }
         Physics::Cylinder { nu, inflow, advection, kick } => {
             boxed(cylinder::build(setup, *nu, *inflow, *advection, *kick)?)

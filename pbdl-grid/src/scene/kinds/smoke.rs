@@ -1,5 +1,6 @@
 //! The buoyant smoke plume (`smoke`): density and velocity, Boussinesq buoyancy, a density inflow
-//! disc, optional obstacles; stepped by [`Fluid`].
+//! disc, optional obstacles; stepped by [`Fluid`]. The density is advected by the scene's
+//! `density_advection` (default: MacCormack, semi-Lagrangian when the velocity uses it).
 
 use super::fluid_flow::{fluid_stable_dt, solid_shapes, FluidFlow};
 use super::{c, Setup};
@@ -10,6 +11,8 @@ use crate::{Bc, Boundaries, Fluid, FluidConfig, ScalarBc, ScalarBoundaries};
 use candle_core::{Device, Tensor};
 
 /// Builds the smoke stepper; the initial density is zero, the initial velocity projected.
+/// `density_advection`: `None` keeps the default (MacCormack, semi-Lagrangian when the velocity
+/// uses it).
 pub(super) fn build(
     setup: &Setup<'_>,
     nu: f64,
@@ -17,14 +20,18 @@ pub(super) fn build(
     boundaries: &Boundaries,
     source: &Source,
     advection: Advection,
+    density_advection: Option<Advection>,
 ) -> SceneResult<(FluidFlow, f64)> {
     let grid = setup.grid2d()?;
     let [x0, y0] = setup.scene.grid.origin;
     let u = setup.velocity(grid, *boundaries)?;
     let (speed, s) = setup.speeds(&u, boundaries)?;
     let dt = setup.pick_dt(speed, fluid_stable_dt(&grid, advection, s, nu))?;
-    let density_advection =
-        if advection == Advection::SemiLagrangian { Advection::SemiLagrangian } else { Advection::MacCormack };
+    let density_advection = density_advection.unwrap_or(if advection == Advection::SemiLagrangian {
+        Advection::SemiLagrangian
+    } else {
+        Advection::MacCormack
+    });
     let config = FluidConfig {
         dt,
         nu,
