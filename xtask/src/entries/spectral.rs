@@ -24,14 +24,19 @@ pub fn decaying_vorticity(x: f64, y: f64) -> f64 {
 }
 
 fn solver(n: usize, nu: f64, dt: f64) -> TaskResult<SpectralNavierStokes> {
-    Ok(SpectralNavierStokes::new(Grid::square(n, 2.0 * PI)?, SpectralConfig { nu, dt, scheme: ImexScheme::CnRk4, drag: 0.0 })?)
+    Ok(SpectralNavierStokes::new(
+        Grid::square(n, 2.0 * PI)?,
+        SpectralConfig { nu, dt, scheme: ImexScheme::CnRk4, drag: 0.0 },
+    )?)
 }
 
 /// The decaying-turbulence state on `n^2` cell centres in `dtype`.
 fn decaying_state(ns: &SpectralNavierStokes, dtype: DType) -> TaskResult<SpectralState> {
     let g = *ns.grid();
     let mut w: Vec<f64> = (0..g.cells())
-        .map(|k| decaying_vorticity((k % g.nx) as f64 * g.dx() + 0.5 * g.dx(), (k / g.nx) as f64 * g.dy() + 0.5 * g.dy()))
+        .map(|k| {
+            decaying_vorticity((k % g.nx) as f64 * g.dx() + 0.5 * g.dx(), (k / g.nx) as f64 * g.dy() + 0.5 * g.dy())
+        })
         .collect();
     let mean = w.iter().sum::<f64>() / w.len() as f64;
     w.iter_mut().for_each(|v| *v -= mean);
@@ -69,13 +74,16 @@ pub fn bench_spectral(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     for &n in sizes {
         let (steps, dt) = steps_to(1.0, n, 1.0);
         let ns = solver(n, nu, dt)?;
-        let tg = |amp: f64| ns.sample_velocity(DType::F32, move |x, y| [x.sin() * y.cos() * amp, -x.cos() * y.sin() * amp]);
+        let tg =
+            |amp: f64| ns.sample_velocity(DType::F32, move |x, y| [x.sin() * y.cos() * amp, -x.cos() * y.sin() * amp]);
         let s0 = ns.state_from_velocity(&tg(1.0)?)?;
         let mut s = s0.clone();
         ns.advance(&mut s, steps)?;
         let exact = tg((-2.0 * nu).exp())?.to_dtype(DType::F64)?;
         let got = ns.velocity(&s)?.to_dtype(DType::F64)?;
-        let err = ((&got - &exact)?.sqr()?.sum_all()?.to_scalar::<f64>()? / exact.sqr()?.sum_all()?.to_scalar::<f64>()?).sqrt();
+        let err = ((&got - &exact)?.sqr()?.sum_all()?.to_scalar::<f64>()?
+            / exact.sqr()?.sum_all()?.to_scalar::<f64>()?)
+        .sqrt();
         let reps = if ctx.quick { 10 } else { (4000 / n).max(10) };
         let mut timed = s0.clone();
         let seconds = median_seconds(3, reps, || ns.advance(&mut timed, 1).expect("stable step"));
