@@ -154,7 +154,9 @@ where
             keep_y,
             stages,
             forcing: None,
-            parallel: parallel_cells(nx * ny),
+            // One pass reads or writes five fields (four inverse transforms and the product), so
+            // the work of one op is five fields' worth of elements.
+            parallel: parallel_cells(5 * nx * ny),
         }
     }
 
