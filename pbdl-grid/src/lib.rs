@@ -20,7 +20,8 @@
 //! | [`scene`] | [`scene::Scene`]: TOML scenes (embedded defaults), built into a [`scene::Simulation`] that holds only the operators the scene needs (one file per physics kind behind one trait) |
 //! | [`obstacle`] | [`Obstacle`] (cylinder, box), [`ObstacleMask`]; masked projection in [`pressure::make_incompressible_masked`] |
 //! | [`forcing`] | [`forcing::buoyancy`] (Boussinesq), [`forcing::DensitySource`], [`forcing::VelocitySource`] |
-//! | [`fluid`] | [`Fluid`]: smoke plume / obstacle-flow stepper (semi-Lagrangian or MacCormack, buoyancy, inflow, implicit viscosity, obstacles), listing its operators |
+//! | [`fluid`] | [`Fluid`]: smoke plume / obstacle-flow stepper (semi-Lagrangian or MacCormack; conservative flux-corrected transport for the density, buoyancy, inflow, implicit viscosity, obstacles), listing its operators |
+//! | [`spectral`] | [`spectral::SpectralNavierStokes`]: 2D pseudo-spectral Navier-Stokes for periodic boxes (vorticity form, 2/3 dealiasing, low-storage IMEX CN-RK4/RK3, f32/f64), a fast path and a differentiable one; scene kind `navier_stokes_spectral` |
 //! | [`navier_stokes`] | [`NavierStokes`]: a stepper built from a config, listing its operators; a [`pbdl_core::stepper::Stepper`] (as are [`Fluid`] and [`grid3d::NavierStokes3d`]) |
 //! | [`grid3d`] | 3D: [`grid3d::MacField3d`], flux-form advection, FFT projection (periodic) and MIC(0)-CG projection (walled box, [`grid3d::Cavity3d`]), [`grid3d::NavierStokes3d`] (RK4, projection per stage), the ABC exact solution |
 //! | [`error`] | [`Error`], [`Result`] |
