@@ -97,6 +97,9 @@ pub(crate) struct Engine2d<F: FftNum> {
     /// Spectrum of a constant vorticity forcing (`[kx][ky]`), added to the explicit terms.
     forcing: Option<Vec<Complex<F>>>,
     parallel: bool,
+    /// Row length of the pass-1 buffer: `ny` rounded up to odd. Pass 2 reads it with a stride
+    /// of `4 ld`; a power-of-two stride put every read of a row into one L1 cache set.
+    ld: usize,
 }
 
 impl<F: SpectralFloat> Engine2d<F>
@@ -157,6 +160,7 @@ where
             // One pass reads or writes five fields (four inverse transforms and the product), so
             // the work of one op is five fields' worth of elements.
             parallel: parallel_cells(5 * nx * ny),
+            ld: ny | 1,
         }
     }
 
@@ -258,7 +262,7 @@ where
     /// seen in the first stage (for the stability check).
     pub(crate) fn step(&self, w: &mut [Complex<F>], mean: [F; 2]) -> [F; 2] {
         let (nh, ny) = (self.nh, self.ny);
-        let mut t4 = take::<Complex<F>>(4 * nh * ny);
+        let mut t4 = take::<Complex<F>>(4 * nh * self.ld);
         let mut q = take::<Complex<F>>(ny * nh);
         let mut h = take::<Complex<F>>(nh * ny);
         h.fill(Self::zero());
@@ -278,7 +282,7 @@ where
     /// `[kx][ky]`, unnormalised.
     pub(crate) fn explicit_terms(&self, w: &[Complex<F>], mean: [F; 2]) -> Vec<Complex<F>> {
         let (nh, ny) = (self.nh, self.ny);
-        let mut t4 = take::<Complex<F>>(4 * nh * ny);
+        let mut t4 = take::<Complex<F>>(4 * nh * self.ld);
         let mut q = take::<Complex<F>>(ny * nh);
         self.spectra_to_columns(w, &mut t4);
         self.advection_rows(&t4, mean, &mut q);
@@ -291,7 +295,7 @@ where
     }
 
     /// Pass 1: per `kx` row, `[u, v, omega_x, omega_y]` (scaled by `1/N`) transformed back along
-    /// `y`, into `t4` laid out `[kx][4][y]`.
+    /// `y`, into `t4` laid out `[kx][4][y]` with rows of `ld` entries.
     fn spectra_to_columns(&self, w: &[Complex<F>], t4: &mut [Complex<F>]) {
         let ny = self.ny;
         let scratch_len = self.inv.get_inplace_scratch_len();
@@ -303,9 +307,10 @@ where
             }
             let ax = self.kx_scaled[r];
             let inv_k2 = &self.inv_k2[r * ny..(r + 1) * ny];
-            let (u, rest) = out.split_at_mut(ny);
-            let (v, rest) = rest.split_at_mut(ny);
-            let (gx, gy) = rest.split_at_mut(ny);
+            let ld = self.ld;
+            let (u, rest) = out.split_at_mut(ld);
+            let (v, rest) = rest.split_at_mut(ld);
+            let (gx, gy) = rest.split_at_mut(ld);
             for j in 0..ny {
                 let z = wr[j];
                 let ay = self.ky_scaled[j];
@@ -316,27 +321,29 @@ where
                 gx[j] = Complex::new(-ax * z.im, ax * z.re);
                 gy[j] = Complex::new(-ay * z.im, ay * z.re);
             }
-            self.inv.process_with_scratch(out, scratch);
+            for f in [u, v, gx, gy] {
+                self.inv.process_with_scratch(&mut f[..ny], scratch);
+            }
         };
         if self.parallel {
-            t4.par_chunks_mut(4 * ny)
+            t4.par_chunks_mut(4 * self.ld)
                 .enumerate()
                 .for_each_init(|| take::<Complex<F>>(scratch_len), |s, (r, out)| body(r, out, s));
         } else {
             let mut s = take::<Complex<F>>(scratch_len);
-            t4.chunks_mut(4 * ny).enumerate().for_each(|(r, out)| body(r, out, &mut s));
+            t4.chunks_mut(4 * self.ld).enumerate().for_each(|(r, out)| body(r, out, &mut s));
         }
     }
 
     /// Pass 2: per `y` row, the four fields to real, the advection, and its transform along `x`
     /// into `q` (`[y][kx]`, only `kx < keep_x` written). Returns the largest `|u|`, `|v|`.
     fn advection_rows(&self, t4: &[Complex<F>], mean: [F; 2], q: &mut [Complex<F>]) -> [F; 2] {
-        let (nx, ny, nh, keep_x) = (self.nx, self.ny, self.nh, self.keep_x);
+        let (nx, nh, keep_x, ld) = (self.nx, self.nh, self.keep_x, self.ld);
         let scratch_len = self.r2c.get_scratch_len().max(self.c2r.get_scratch_len());
         let body = |y: usize, out: &mut [Complex<F>], buf: &mut RowBuffers<F>| -> [F; 2] {
             for k in 0..4 {
                 for r in 0..nh {
-                    buf.half[r] = t4[r * 4 * ny + k * ny + y];
+                    buf.half[r] = t4[(r * 4 + k) * ld + y];
                 }
                 clear_real_edges(&mut buf.half, nx);
                 self.c2r

@@ -6,14 +6,15 @@
 //!   against the analytic decay) at 32^2 to 256^2, and decaying turbulence from the smooth
 //!   vorticity `omega_0` below to t = 1 (nu = 1e-3, CFL 0.5 on |u| = 3, relative L2 vorticity
 //!   error against the same solver at 3x the resolution and a 3x shorter step in f64) at 64^2 and
-//!   128^2.
+//!   128^2; and the 3D ABC flow ([`SpectralNavierStokes3d`]) to t = 1 at 16^3 to 64^3 against the
+//!   analytic decay, next to the finite-volume `abc_3d` rows.
 //! * stress `spectral_high_re`: decaying turbulence at nu = 1e-5 (Re ~ 1e5 on the box) for 2,000
 //!   steps at 128^2, f32: finite, energy never grows.
 
 use crate::bench_schema::{median_seconds, BenchRow};
 use crate::registry::{StressCheck, StressMeasure, TaskContext, TaskResult};
 use candle_core::{DType, Device, Tensor};
-use pbdl_grid::spectral::{ImexScheme, SpectralConfig, SpectralNavierStokes, SpectralState};
+use pbdl_grid::spectral::{ImexScheme, SpectralConfig, SpectralNavierStokes, SpectralNavierStokes3d, SpectralState};
 use pbdl_grid::Grid;
 use std::f64::consts::PI;
 
@@ -116,6 +117,34 @@ pub fn bench_spectral(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         let mut timed = s0.clone();
         let seconds = median_seconds(3, reps, || ns.advance(&mut timed, 1).expect("stable step"));
         rows.push(row("decaying_turbulence", n, seconds, (num / den).sqrt(), "rel_l2_vorticity_vs_3x_finer"));
+    }
+    // 3D: the ABC flow (A = B = C = 1, nu = 0.01) to t = 1, CFL 0.5 on its largest component
+    // (2), as the `abc_3d` rows of the finite-volume solver.
+    let sizes: &[usize] = if ctx.quick { &[16] } else { &[16, 32, 64] };
+    for &n in sizes {
+        let (steps, dt) = steps_to(1.0, n, 2.0);
+        let grid = pbdl_grid::grid3d::Grid3d::cube(n, 2.0 * PI)?;
+        let ns =
+            SpectralNavierStokes3d::new(grid, SpectralConfig { nu: 0.01, dt, scheme: ImexScheme::CnRk4, drag: 0.0 })?;
+        let abc = |d: f64| {
+            ns.sample_velocity(DType::F32, move |x, y, z| {
+                [d * (z.sin() + y.cos()), d * (x.sin() + z.cos()), d * (y.sin() + x.cos())]
+            })
+        };
+        let s0 = ns.state_from_velocity(&abc(1.0)?)?;
+        let mut s = s0.clone();
+        ns.advance(&mut s, steps)?;
+        let exact = abc((-0.01f64).exp())?.to_dtype(DType::F64)?;
+        let got = ns.velocity(&s)?.to_dtype(DType::F64)?;
+        let err = ((&got - &exact)?.sqr()?.sum_all()?.to_scalar::<f64>()?
+            / exact.sqr()?.sum_all()?.to_scalar::<f64>()?)
+        .sqrt();
+        let reps = if ctx.quick { 3 } else { (256 / n).max(3) };
+        let mut timed = s0.clone();
+        let seconds = median_seconds(1, reps, || ns.advance(&mut timed, 1).expect("stable step"));
+        let mut r = row("abc_3d", n, seconds, err, "rel_l2_vs_analytic");
+        r.size = format!("{n}x{n}x{n}");
+        rows.push(r);
     }
     Ok(rows)
 }
