@@ -52,11 +52,11 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         println!("sim: initial {} from {}", used.join(", "), path.display());
     }
     let g = sim.scene().grid;
+    let cells = if g.nz > 1 { format!("{}x{}x{}", g.nx, g.ny, g.nz) } else { format!("{}x{}", g.nx, g.ny) };
     println!(
-        "sim: {} on {}x{} ({}), dt = {:.4e}, {} steps to t = {:.4}",
+        "sim: {} on {} ({}), dt = {:.4e}, {} steps to t = {:.4}",
         sim.scene().name,
-        g.nx,
-        g.ny,
+        cells,
         sim.scene().about,
         sim.dt(),
         sim.steps(),

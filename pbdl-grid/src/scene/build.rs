@@ -16,6 +16,8 @@ pub enum State {
     Velocity(MacField),
     /// A staggered velocity and a cell-centred density (the smoke scene).
     Smoke(FluidState),
+    /// A cell-centred 3D velocity `[1, 3, nz, ny, nx]` (3D `navier_stokes_spectral` scenes).
+    Velocity3d(Tensor),
 }
 
 impl State {
@@ -24,7 +26,7 @@ impl State {
         match self {
             State::Velocity(u) => Some(u),
             State::Smoke(s) => Some(&s.velocity),
-            State::Scalar(_) => None,
+            State::Scalar(_) | State::Velocity3d(_) => None,
         }
     }
 

@@ -222,4 +222,64 @@ impl Init {
             _ => Box::new(|_, _| [0.0, 0.0]),
         }
     }
+
+    /// The 3D velocity function `(x, y, z) -> [vx, vy, vz]` of a 3D scene: `uniform` (`vz = 0`),
+    /// `taylor_green` (Brachet et al. 1983: `u = A sin x cos y cos z`, `v = -A cos x sin y cos z`,
+    /// `w = 0` in units of the box), `random_modes` (Fourier modes up to `max_wavenumber` per
+    /// axis, seeded, scaled to `max |u_i| = amplitude` on a 32^3 sample), zero otherwise.
+    pub(crate) fn velocity3d(&self, l: [f64; 3]) -> Box<dyn Fn(f64, f64, f64) -> [f64; 3]> {
+        let k = [2.0 * PI / l[0], 2.0 * PI / l[1], 2.0 * PI / l[2]];
+        match *self {
+            Init::Uniform { velocity } => Box::new(move |_, _, _| [velocity[0], velocity[1], 0.0]),
+            Init::TaylorGreen { amplitude } => Box::new(move |x, y, z| {
+                let (sx, cx) = (k[0] * x).sin_cos();
+                let (sy, cy) = (k[1] * y).sin_cos();
+                let cz = (k[2] * z).cos();
+                [amplitude * sx * cy * cz, -amplitude * cx * sy * cz, 0.0]
+            }),
+            Init::RandomModes { amplitude, max_wavenumber, seed } => {
+                use rand::Rng;
+                let mut rng = pbdl_core::seed::rng(seed);
+                let m = max_wavenumber as i32;
+                // ([kx, ky, kz], amplitude, phase) per component; half of the wavevectors (the
+                // other half are their negatives).
+                let mut modes: [Vec<([f64; 3], f64, f64)>; 3] = [Vec::new(), Vec::new(), Vec::new()];
+                for comp in &mut modes {
+                    for a in 0..=m {
+                        for b in -m..=m {
+                            for c in -m..=m {
+                                if a == 0 && (b < 0 || (b == 0 && c <= 0)) {
+                                    continue;
+                                }
+                                let r = (a * a + b * b + c * c) as f64;
+                                let kv = [a as f64 * k[0], b as f64 * k[1], c as f64 * k[2]];
+                                comp.push((kv, rng.random_range(-1.0..1.0) / r, rng.random_range(0.0..2.0 * PI)));
+                            }
+                        }
+                    }
+                }
+                let eval = move |x: f64, y: f64, z: f64| {
+                    let mut out = [0.0; 3];
+                    for (o, comp) in out.iter_mut().zip(&modes) {
+                        for &(kv, amp, ph) in comp {
+                            *o += amp * (kv[0] * x + kv[1] * y + kv[2] * z + ph).sin();
+                        }
+                    }
+                    out
+                };
+                let mut mx: f64 = 0.0;
+                for q in 0..32usize.pow(3) {
+                    let (i, j, kk) = (q % 32, (q / 32) % 32, q / 1024);
+                    let v = eval(i as f64 * l[0] / 32.0, j as f64 * l[1] / 32.0, kk as f64 * l[2] / 32.0);
+                    mx = mx.max(v[0].abs()).max(v[1].abs()).max(v[2].abs());
+                }
+                let s = if mx > 0.0 { amplitude / mx } else { 0.0 };
+                Box::new(move |x, y, z| {
+                    let v = eval(x, y, z);
+                    [s * v[0], s * v[1], s * v[2]]
+                })
+            }
+            _ => Box::new(|_, _, _| [0.0, 0.0, 0.0]),
+        }
+    }
 }

@@ -24,6 +24,7 @@
 //! [grid]
 //! nx = 32
 //! ny = 32                           # 1 for 1D scenes (default)
+//! # nz = 32                         # > 1: a 3D scene (navier_stokes_spectral only); lz its length
 //! lx = 6.283185307179586
 //! ly = 6.283185307179586
 //! origin = [0.0, 0.0]               # coordinates of the lower-left corner (init formulas)
@@ -167,6 +168,13 @@ pub struct GridSpec {
     /// Length along y (default 1).
     #[serde(default = "one_f")]
     pub ly: f64,
+    /// Cells along z (default 1: a 2D scene; more makes a 3D scene, for the kinds that have a 3D
+    /// form: `navier_stokes_spectral`).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub nz: usize,
+    /// Length along z (default 1; used by 3D scenes).
+    #[serde(default = "one_f", skip_serializing_if = "is_one_f")]
+    pub lz: f64,
     /// Coordinates of the lower-left corner, used by the initial-condition formulas. Default: 0.
     #[serde(default)]
     pub origin: [f64; 2],
@@ -177,6 +185,12 @@ fn one() -> usize {
 }
 fn one_f() -> f64 {
     1.0
+}
+fn is_one(v: &usize) -> bool {
+    *v == 1
+}
+fn is_one_f(v: &f64) -> bool {
+    *v == 1.0
 }
 fn half() -> f64 {
     0.5
@@ -448,10 +462,15 @@ impl Scene {
         }
     }
 
-    /// The same scene with `n` cells along x (and y scaled to keep the aspect; 1D stays 1D).
+    /// The same scene with `n` cells along x (and y, z scaled to keep the aspect; 1D stays 1D,
+    /// 2D stays 2D).
     pub fn with_resolution(mut self, n: usize) -> Self {
+        let scale = |m: usize| ((n as f64 * m as f64 / self.grid.nx.max(1) as f64).round() as usize).max(1);
+        if self.grid.nz > 1 {
+            self.grid.nz = scale(self.grid.nz).max(2);
+        }
         if self.grid.ny > 1 {
-            self.grid.ny = ((n as f64 * self.grid.ny as f64 / self.grid.nx.max(1) as f64).round() as usize).max(1);
+            self.grid.ny = scale(self.grid.ny);
         }
         self.grid.nx = n;
         self
@@ -487,6 +506,23 @@ impl Scene {
         for (f, l) in [("grid.lx", g.lx), ("grid.ly", g.ly)] {
             if !(l > 0.0 && l.is_finite()) {
                 return bad(f, format!("must be a positive finite length, got {l}"));
+            }
+        }
+        if g.nz != 1 {
+            if !matches!(self.physics, Physics::NavierStokesSpectral { .. }) {
+                return bad(
+                    "grid.nz",
+                    format!("only navier_stokes_spectral has a 3D form; use nz = 1 for this kind, got {}", g.nz),
+                );
+            }
+            if g.nz < 2 {
+                return bad("grid.nz", format!("a 3D scene needs at least 2 cells, got {}", g.nz));
+            }
+            if g.nx.checked_mul(g.ny).and_then(|c| c.checked_mul(g.nz)).and_then(|c| c.checked_mul(64)).is_none() {
+                return bad("grid", format!("{} x {} x {} cells do not fit in memory", g.nx, g.ny, g.nz));
+            }
+            if !(g.lz > 0.0 && g.lz.is_finite()) {
+                return bad("grid.lz", format!("must be a positive finite length, got {}", g.lz));
             }
         }
         if !g.origin.iter().all(|v| v.is_finite()) {

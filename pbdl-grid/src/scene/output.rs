@@ -21,7 +21,8 @@ fn cdl<T>(r: candle_core::Result<T>) -> SceneResult<T> {
 /// `step` `[T]`, f64) and renders: for 2D scenes the last frame of each scalar as a PNG and its
 /// trajectory as a GIF, for velocity scenes the speed `|u|` (PNG) and the vorticity (PNG + GIF, colours clipped
 /// symmetrically at the 99.5th percentile of `|w|` of the last frame);
-/// for 1D scenes a line plot of the frames and a space-time image (x across, time up).
+/// for 1D scenes a line plot of the frames and a space-time image (x across, time up); 3D
+/// scenes write `[T, C, nz, ny, nx]` and render the middle z slice (vorticity: its z component).
 /// Renders need the `viz` feature (on by default); without it only the `.npz` is written.
 /// Returns the files written.
 pub fn write_trajectory(sim: &Simulation, traj: &Trajectory, dir: &Path) -> SceneResult<Vec<PathBuf>> {
@@ -54,6 +55,20 @@ fn render_arrays(
     let nt = traj.times.len();
     let one_d = sim.scene().grid.ny == 1;
     for (field, t) in arrays {
+        // A 3D field [T, C, Z, Y, X] is rendered as its middle z slice; for the vorticity its z
+        // component (the rotation seen in that plane).
+        let sliced;
+        let t = if t.rank() == 5 {
+            let nz = t.dims()[2];
+            let mut s = cdl(t.narrow(2, nz / 2, 1).and_then(|x| x.squeeze(2)))?;
+            if field == "vorticity" && s.dims()[1] == 3 {
+                s = cdl(s.narrow(1, 2, 1))?;
+            }
+            sliced = s;
+            &sliced
+        } else {
+            t
+        };
         if t.rank() != 4 || field == "velocity_mac" {
             continue;
         }

@@ -74,6 +74,9 @@ pub(crate) fn build(setup: &Setup<'_>) -> SceneResult<(Box<dyn PhysicsKind>, f64
         Physics::NavierStokes { nu, boundaries, forcing } => {
             boxed(navier_stokes::NavierStokesKind::build(setup, *nu, boundaries, forcing.as_ref())?)
         }
+        Physics::NavierStokesSpectral { nu, forcing, .. } if setup.scene.grid.nz > 1 => {
+            boxed(navier_stokes_spectral::SpectralKind3d::build(setup, *nu, forcing.as_ref())?)
+        }
         Physics::NavierStokesSpectral { nu, forcing, .. } => {
             boxed(navier_stokes_spectral::SpectralKind::build(setup, *nu, forcing.as_ref())?)
         }
