@@ -66,6 +66,11 @@ pub fn tasks() -> CrateTasks {
                 run: tour_smoke,
             },
             Entry {
+                name: "decaying_turbulence",
+                about: "Pseudo-spectral decaying turbulence (embedded scene, 128^2 f64, t = 10): vorticity PNG + GIF, energy budget against 2 nu int Z.",
+                run: super::spectral::tour_decaying_turbulence,
+            },
+            Entry {
                 name: "karman_street",
                 about: "Flow past a cylinder at Re = 100 (blockage 1/32): vorticity PNG + GIF, Strouhal number vs Williamson (1996).",
                 run: tour_karman,

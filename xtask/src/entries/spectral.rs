@@ -8,12 +8,16 @@
 //!   error against the same solver at 3x the resolution and a 3x shorter step in f64) at 64^2 and
 //!   128^2; and the 3D ABC flow ([`SpectralNavierStokes3d`]) to t = 1 at 16^3 to 64^3 against the
 //!   analytic decay, next to the finite-volume `abc_3d` rows.
+//! * tour `decaying_turbulence`: the embedded scene (128^2 f64, 64^2 quick) to t = 10: vorticity
+//!   PNG + GIF, and the energy budget `E(t)` against `E(0) - 2 nu int Z dt` (plot).
 //! * stress `spectral_high_re`: decaying turbulence at nu = 1e-5 (Re ~ 1e5 on the box) for 2,000
 //!   steps at 128^2, f32: finite, energy never grows.
 
 use crate::bench_schema::{median_seconds, BenchRow};
-use crate::registry::{StressCheck, StressMeasure, TaskContext, TaskResult};
+use crate::registry::{StressCheck, StressMeasure, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::{DType, Device, Tensor};
+use pbdl_core::viz::{self, PlotStyle, Series};
+use pbdl_grid::scene::{write_trajectory, Scene};
 use pbdl_grid::spectral::{ImexScheme, SpectralConfig, SpectralNavierStokes, SpectralNavierStokes3d, SpectralState};
 use pbdl_grid::Grid;
 use std::f64::consts::PI;
@@ -175,7 +179,9 @@ pub fn stress_spectral_high_re(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>
         }
         prev = e;
     }
+    let three_d = stress_3d(ctx)?;
     Ok(vec![
+        three_d,
         StressCheck {
             invariant: format!("finite for {steps} steps at nu = 1e-5, {n}^2 f32"),
             passed: finite_steps == steps,
@@ -191,4 +197,120 @@ pub fn stress_spectral_high_re(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>
             measure: None,
         },
     ])
+}
+
+/// The `decaying_turbulence` tour entry (see the module docs).
+pub fn tour_decaying_turbulence(ctx: &TaskContext) -> TaskResult<TourOutcome> {
+    let n = if ctx.quick { 64 } else { 128 };
+    let mut sim = Scene::builtin("decaying_turbulence")?.with_resolution(n).build()?;
+    let nu = 1e-3;
+    let g = *sim.grid().ok_or("decaying_turbulence is a 2D scene")?;
+    // Energy and enstrophy of the centred velocity and vorticity after every step.
+    let budget = |sim: &pbdl_grid::scene::Simulation| -> TaskResult<(f64, f64)> {
+        let f = sim.fields()?;
+        let get = |name: &str| -> TaskResult<Vec<f64>> {
+            let t = &f.iter().find(|(k, _)| k == name).ok_or("missing field")?.1;
+            Ok(t.to_dtype(DType::F64)?.flatten_all()?.to_vec1::<f64>()?)
+        };
+        let cells = g.cells() as f64;
+        let e = 0.5 * get("velocity")?.iter().map(|v| v * v).sum::<f64>() / cells;
+        let z = 0.5 * get("vorticity")?.iter().map(|v| v * v).sum::<f64>() / cells;
+        Ok((e, z))
+    };
+    let (e0, z0) = budget(&sim)?;
+    let (mut times, mut energy, mut predicted) = (vec![0.0], vec![e0], vec![e0]);
+    let (mut z_prev, mut integral) = (z0, 0.0);
+    let started = std::time::Instant::now();
+    let traj = sim.run(|_| {})?;
+    let seconds = started.elapsed().as_secs_f64();
+    // The budget from the recorded frames would be too coarse: rerun with a probe per step.
+    let mut probe = Scene::builtin("decaying_turbulence")?.with_resolution(n).build()?;
+    let steps = probe.steps();
+    for _ in 0..steps {
+        probe.step()?;
+        let (e, z) = budget(&probe)?;
+        integral += 0.5 * (z + z_prev) * probe.dt();
+        z_prev = z;
+        times.push(probe.time());
+        energy.push(e);
+        predicted.push(e0 - 2.0 * nu * integral);
+    }
+    let mut files = write_trajectory(&sim, &traj, &ctx.out_dir)?;
+    let png = ctx.out_dir.join("energy_budget.png");
+    let style = PlotStyle {
+        title: format!("decaying turbulence {n}^2: energy budget"),
+        x_label: "t".into(),
+        y_label: "kinetic energy".into(),
+        ..Default::default()
+    };
+    viz::line_plot(
+        &png,
+        &[
+            Series::new("E(t)", times.clone(), energy.clone()),
+            Series::new("E(0) - 2 nu int Z dt", times, predicted.clone()),
+        ],
+        &style,
+    )?;
+    files.push(png);
+    let (e1, p1) = (*energy.last().unwrap_or(&e0), *predicted.last().unwrap_or(&e0));
+    let gap = (e1 - p1).abs() / (e0 - e1).abs().max(f64::MIN_POSITIVE);
+    let links = files
+        .iter()
+        .filter(|f| f.extension().is_some_and(|e| e == "png" || e == "gif"))
+        .map(|f| {
+            let rel = f.strip_prefix(&ctx.out_dir).unwrap_or(f);
+            format!("![{}]({})", rel.display(), rel.display())
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let markdown = format!(
+        "Pseudo-spectral decaying turbulence, {n}^2 f64, nu = 1e-3, {steps} steps to t = {:.1} in {seconds:.2} s \
+         (operators: {}). Energy {e0:.5} -> {e1:.5}; the budget E(0) - 2 nu int Z dt gives {p1:.5} \
+         (off by {gap:.1e} of the energy lost: time-stepping and trapezoid error).\n\n{links}",
+        sim.time(),
+        sim.operators().join(", ")
+    );
+    Ok(TourOutcome {
+        rows: vec![TourRow {
+            item: format!("decaying_turbulence {n}^2 f64, t = 10"),
+            seconds,
+            error: Some(gap),
+            error_kind: "energy_budget_rel_gap".into(),
+            note: format!("{steps} steps"),
+        }],
+        files,
+        markdown,
+    })
+}
+
+/// 3D Taylor-Green at nu = 1e-4 (Re = 10^4 on the box), f32: unforced energy never grows and the
+/// run stays finite.
+fn stress_3d(ctx: &TaskContext) -> TaskResult<StressCheck> {
+    let (n, steps) = if ctx.quick { (16, 50) } else { (32, 500) };
+    let grid = pbdl_grid::grid3d::Grid3d::cube(n, 2.0 * PI)?;
+    let (_, dt) = steps_to(1.0, n, 1.0);
+    let ns = SpectralNavierStokes3d::new(grid, SpectralConfig { nu: 1e-4, dt, scheme: ImexScheme::CnRk4, drag: 0.0 })?;
+    let u0 =
+        ns.sample_velocity(DType::F32, |x, y, z| [x.sin() * y.cos() * z.cos(), -x.cos() * y.sin() * z.cos(), 0.0])?;
+    let mut s = ns.state_from_velocity(&u0)?;
+    let (mut prev, mut first_bad, mut done) = (ns.energy(&s)?, None, 0usize);
+    for k in 0..steps {
+        if ns.advance(&mut s, 1).is_err() {
+            first_bad.get_or_insert(k as u64 + 1);
+            break;
+        }
+        let e = ns.energy(&s)?;
+        if !e.is_finite() || e > prev * (1.0 + 1e-6) {
+            first_bad.get_or_insert(k as u64 + 1);
+        }
+        prev = e;
+        done += 1;
+    }
+    Ok(StressCheck {
+        invariant: format!("3D Taylor-Green nu = 1e-4, {n}^3 f32, {steps} steps: finite, energy never grows"),
+        passed: first_bad.is_none() && done == steps,
+        first_broken_step: first_bad,
+        detail: format!("{done} of {steps} steps; final energy {prev:.5e} (start 0.125)"),
+        measure: Some(StressMeasure::StableSteps(done as u64)),
+    })
 }
