@@ -15,14 +15,17 @@
 //! | [`cholesky`] | [`CholeskyBox3d`]: the same matrix factored once (faer sparse Cholesky, nested-dissection order) |
 //! | [`box_pressure`] | [`BoxPressure`] (the solver choice), [`BoxSolver`], [`box_pressure::make_incompressible_box`] (self-adjoint) |
 //! | [`cavity`] | [`Cavity3d`]: the lid-driven cavity stepper (walled right-hand side, projection per stage) |
+//! | [`advect`] | semi-Lagrangian and MacCormack (Selle limiter) advection of cell-centred scalars and of the no-slip box velocity ([`Advection3d`]); hand-written adjoints |
+//! | [`smoke`] | [`Smoke3d`]: the buoyant smoke plume (density advection, sphere inflow, velocity self-advection, Boussinesq buoyancy, optional viscosity, box projection), listing its operators |
 //!
 //! Conventions: tensors `[batch, channel, nz, ny, nx]`, x fastest, `f32` or `f64`, CPU. The
 //! periodic solver ([`NavierStokes3d`]) treats every face of the box as periodic; the cavity
 //! ([`Cavity3d`]) keeps the last face of each component along its own axis as a wall face.
 //! Time schemes are the 2D ones ([`crate::ButcherTableau`]).
 //!
-//! Not here yet: other wall layouts (inflow/outflow, free slip), obstacles, scalar transport, a
-//! fused stage update for the cavity, and a warm start of CG across time steps inside the stepper.
+//! Not here yet: other wall layouts (inflow/outflow, free slip), obstacles, conservative scalar
+//! transport, a fused stage update for the cavity, and a warm start of CG across time steps
+//! inside the steppers.
 //!
 //! ```
 //! use pbdl_grid::grid3d::{abc::abc_flow, fd, Grid3d, NavierStokes3d, NavierStokes3dConfig};
@@ -35,6 +38,7 @@
 //! ```
 
 pub mod abc;
+pub mod advect;
 pub mod box_pressure;
 pub mod cavity;
 pub mod cg;
@@ -47,9 +51,11 @@ pub mod momentum;
 pub mod navier_stokes;
 mod periodic;
 pub mod pressure;
+pub mod smoke;
 pub mod stability;
 pub mod walls;
 
+pub use advect::Advection3d;
 pub use box_pressure::{BoxPressure, BoxSolver};
 pub use cavity::Cavity3d;
 pub use cg::CgBox3d;
@@ -58,4 +64,5 @@ pub use domain::Grid3d;
 pub use field::MacField3d;
 pub use navier_stokes::{NavierStokes3d, NavierStokes3dConfig};
 pub use pressure::PoissonFft3d;
+pub use smoke::{Smoke3d, Smoke3dConfig, Smoke3dState, SphereSource, Viscosity3d};
 pub use walls::CavityWalls;

@@ -1,0 +1,648 @@
+//! A buoyant smoke plume in the closed 3D box: the 3D counterpart of the 2D [`crate::Fluid`] with a
+//! density, buoyancy and an inflow, on the walls of [`super::walls`] (no-slip, at rest).
+//!
+//! One [`Smoke3d::step`] (PhiFlow's smoke-plume order):
+//! 1. density: advect by the old velocity ([`super::advect`], MacCormack by default), add the
+//!    inflow `dt * rate` in the cells whose centres lie in a sphere ([`SphereSource`]);
+//! 2. velocity: advect by itself (MacCormack by default, no-slip walls), add the Boussinesq force
+//!    `dt * beta * rho` along `+y` ([`buoyancy`]: the new density averaged to the y-faces);
+//! 3. viscosity when `nu > 0`: explicit (`u + dt nu L u`, forward Euler, its limit checked at
+//!    build time) or implicit (`(I - dt nu L)^-1 u`, backward Euler, CG to round-off), with the
+//!    no-slip ghosts of [`super::walls`]; nothing at `nu = 0`;
+//! 4. projection in the closed box ([`super::box_pressure`]: [`BoxPressure::Auto`] factors a
+//!    sparse Cholesky up to 32^3 cells and runs MIC(0)-CG above, as [`super::Cavity3d`]).
+//!
+//! A [`Smoke3d`] is built once and holds only what its configuration needs;
+//! [`Smoke3d::operators`] lists them. Every part has a hand-written adjoint (advection,
+//! buoyancy, both viscosities, the projection), so a step is differentiable in the initial
+//! velocity and density and in the inflow rate (pass it as a tensor to [`Smoke3d::step`]).
+//! Semi-Lagrangian and MacCormack advection are unconditionally stable, so the only time-step
+//! limit is the explicit viscosity's; [`Smoke3d::cfl`] reports the CFL number for accuracy.
+
+use super::advect::{Advection3d, Sl3d};
+use super::box_pressure::{BoxPressure, BoxSolver, WallProjection};
+use super::field::{check_values, MacField3d};
+use super::stability::check_time_step;
+use super::walls::{CavityWalls, WallMomentumRhs};
+use super::Grid3d;
+use crate::time_stepping::ButcherTableau;
+use crate::{Error, Result};
+use candle_core::{DType, Device, Shape, Tensor};
+use pbdl_core::op::{apply1, apply_kernel1, Kernel1, Op1};
+use pbdl_core::Real;
+use serde::{Deserialize, Serialize};
+
+/// How the viscous term is stepped (only when `nu > 0`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Viscosity3d {
+    /// Forward Euler `u + dt nu L u`; needs `4 dt nu (1/dx^2 + 1/dy^2 + 1/dz^2) <= 2`.
+    Explicit,
+    /// Backward Euler `(I - dt nu L)^-1 u` by conjugate gradients (default; no time-step limit).
+    #[default]
+    Implicit,
+}
+
+/// A spherical density inflow: `dt * rate` is added each step to every cell whose centre lies
+/// in the sphere.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SphereSource {
+    /// Centre `[x, y, z]` (inside the box).
+    pub centre: [f64; 3],
+    /// Radius (> 0; the sphere must cover at least one cell centre).
+    pub radius: f64,
+    /// Density added per unit time (finite; [`Smoke3d::step`] can override it with a tensor).
+    pub rate: f64,
+}
+
+impl SphereSource {
+    /// Checks the source against `grid`: finite values, centre inside the box, positive radius,
+    /// at least one cell centre covered.
+    pub fn validate(&self, grid: &Grid3d) -> Result<()> {
+        let inv = |reason: String| Error::Invalid { field: "source", reason };
+        if !self.centre.iter().all(|c| c.is_finite()) || !self.rate.is_finite() {
+            return Err(inv(format!("centre {:?} and rate {} must be finite", self.centre, self.rate)));
+        }
+        if !(self.radius > 0.0 && self.radius.is_finite()) {
+            return Err(inv(format!("radius must be positive and finite, got {}", self.radius)));
+        }
+        let l = [grid.lx, grid.ly, grid.lz];
+        if (0..3).any(|a| self.centre[a] < 0.0 || self.centre[a] > l[a]) {
+            return Err(inv(format!(
+                "centre {:?} lies outside the box [0, {}] x [0, {}] x [0, {}]",
+                self.centre, l[0], l[1], l[2]
+            )));
+        }
+        if self.cells(grid) == 0 {
+            return Err(inv(format!(
+                "the sphere of radius {} at {:?} covers no cell centre (spacing {:?}); enlarge it",
+                self.radius,
+                self.centre,
+                grid.spacing()
+            )));
+        }
+        Ok(())
+    }
+
+    fn inside(&self, grid: &Grid3d, i: usize, j: usize, k: usize) -> bool {
+        let h = grid.spacing();
+        let p = [(i as f64 + 0.5) * h[0], (j as f64 + 0.5) * h[1], (k as f64 + 0.5) * h[2]];
+        (0..3).map(|a| (p[a] - self.centre[a]).powi(2)).sum::<f64>() <= self.radius * self.radius
+    }
+
+    /// Number of cells whose centre lies in the sphere.
+    pub fn cells(&self, grid: &Grid3d) -> usize {
+        let mut c = 0;
+        for k in 0..grid.nz {
+            for j in 0..grid.ny {
+                for i in 0..grid.nx {
+                    c += usize::from(self.inside(grid, i, j, k));
+                }
+            }
+        }
+        c
+    }
+
+    /// The 0/1 cell mask `[1, 1, nz, ny, nx]` (f64), after [`Self::validate`].
+    pub fn mask(&self, grid: &Grid3d) -> Result<Tensor> {
+        self.validate(grid)?;
+        let mut m = vec![0.0; grid.cells()];
+        for k in 0..grid.nz {
+            for j in 0..grid.ny {
+                for i in 0..grid.nx {
+                    if self.inside(grid, i, j, k) {
+                        m[(k * grid.ny + j) * grid.nx + i] = 1.0;
+                    }
+                }
+            }
+        }
+        Ok(Tensor::from_vec(m, grid.shape(1, 1).to_vec(), &Device::Cpu)?)
+    }
+}
+
+/// Parameters of a [`Smoke3d`] stepper.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Smoke3dConfig {
+    /// Time step (> 0; no stability limit except the explicit viscosity's, but keep the CFL
+    /// number moderate for accuracy).
+    pub dt: f64,
+    /// Kinematic viscosity (>= 0; 0 runs no viscous operator). Default 0.
+    #[serde(default)]
+    pub nu: f64,
+    /// How the viscous term is stepped when `nu > 0`. Default implicit.
+    #[serde(default)]
+    pub viscosity: Viscosity3d,
+    /// Velocity self-advection. Default MacCormack.
+    #[serde(default)]
+    pub advection: Advection3d,
+    /// Density advection. Default MacCormack.
+    #[serde(default)]
+    pub density_advection: Advection3d,
+    /// Boussinesq coefficient `beta`: the force `beta rho` along `+y` (0: no buoyancy operator).
+    #[serde(default)]
+    pub buoyancy: f64,
+    /// The density inflow, if any.
+    #[serde(default)]
+    pub source: Option<SphereSource>,
+}
+
+impl Smoke3dConfig {
+    /// A rising plume on `grid`: a sphere of radius `0.08 min(lx, ly, lz)` (at least 1.5 cells)
+    /// centred at `(lx / 2, 0.15 ly, lz / 2)` injecting at rate 1, `beta = 1`, inviscid,
+    /// MacCormack for both fields, `dt` as given.
+    pub fn plume(grid: &Grid3d, dt: f64) -> Self {
+        let l = grid.lx.min(grid.ly).min(grid.lz);
+        let radius = (0.08 * l).max(1.5 * grid.spacing().into_iter().fold(0.0, f64::max));
+        Self {
+            dt,
+            nu: 0.0,
+            viscosity: Viscosity3d::default(),
+            advection: Advection3d::MacCormack,
+            density_advection: Advection3d::MacCormack,
+            buoyancy: 1.0,
+            source: Some(SphereSource { centre: [0.5 * grid.lx, 0.15 * grid.ly, 0.5 * grid.lz], radius, rate: 1.0 }),
+        }
+    }
+}
+
+/// The state a [`Smoke3d`] advances.
+#[derive(Clone, Debug)]
+pub struct Smoke3dState {
+    /// MAC velocity (wall faces 0 after a step).
+    pub velocity: MacField3d,
+    /// Smoke density `[batch, 1, nz, ny, nx]`, same dtype and batch as the velocity.
+    pub density: Tensor,
+}
+
+/// The viscous operator a stepper runs.
+#[derive(Clone, Copy, Debug)]
+enum Visc {
+    Explicit(WallMomentumRhs),
+    Implicit(ImplicitViscosity3d),
+}
+
+/// A built 3D smoke-plume stepper (closed box, no-slip walls).
+pub struct Smoke3d {
+    grid: Grid3d,
+    config: Smoke3dConfig,
+    source_mask: Option<Tensor>,
+    viscosity: Option<Visc>,
+    projection: WallProjection,
+    operators: Vec<&'static str>,
+}
+
+impl std::fmt::Debug for Smoke3d {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Smoke3d")
+            .field("grid", &self.grid)
+            .field("config", &self.config)
+            .field("operators", &self.operators)
+            .finish()
+    }
+}
+
+impl Smoke3d {
+    /// Builds the stepper: validates the configuration (typed errors naming the bad field),
+    /// refuses an explicit viscosity beyond its limit, builds the source mask and the pressure
+    /// solver (`pressure`: [`BoxPressure::default()`] = `Auto`, i.e. sparse Cholesky factored
+    /// here up to 32^3 cells, MIC(0)-CG above; or [`BoxPressure::Cholesky`] /
+    /// [`BoxPressure::Cg`], a bare [`crate::pressure::CgSettings`] converts into the latter).
+    pub fn new(grid: Grid3d, config: Smoke3dConfig, pressure: impl Into<BoxPressure>) -> Result<Self> {
+        grid.validate()?;
+        if !(config.dt > 0.0 && config.dt.is_finite()) {
+            return Err(Error::Invalid {
+                field: "dt",
+                reason: format!("time step must be positive and finite, got {}", config.dt),
+            });
+        }
+        if !(config.nu >= 0.0 && config.nu.is_finite()) {
+            return Err(Error::Invalid {
+                field: "nu",
+                reason: format!("viscosity must be finite and >= 0, got {}", config.nu),
+            });
+        }
+        if !config.buoyancy.is_finite() {
+            return Err(Error::Invalid {
+                field: "buoyancy",
+                reason: format!("must be finite, got {}", config.buoyancy),
+            });
+        }
+        let mut operators = vec![config.density_advection.operator_name(false)];
+        let source_mask = match &config.source {
+            Some(s) => {
+                operators.push("grid3d.source.sphere");
+                Some(s.mask(&grid)?)
+            }
+            None => None,
+        };
+        operators.push(config.advection.operator_name(true));
+        if config.buoyancy != 0.0 {
+            operators.push("grid3d.buoyancy");
+        }
+        let viscosity = if config.nu > 0.0 {
+            Some(match config.viscosity {
+                Viscosity3d::Explicit => {
+                    check_time_step(&grid, [0.0; 3], config.nu, &ButcherTableau::forward_euler(), config.dt)?;
+                    operators.push("grid3d.diffuse.explicit");
+                    let walls = CavityWalls { lid_velocity: 0.0 };
+                    Visc::Explicit(WallMomentumRhs { grid, walls, advect: false, nu: config.nu })
+                }
+                Viscosity3d::Implicit => {
+                    operators.push("grid3d.diffuse.implicit");
+                    Visc::Implicit(ImplicitViscosity3d { grid, nu_dt: config.nu * config.dt })
+                }
+            })
+        } else {
+            None
+        };
+        let projection = WallProjection { solver: pressure.into().build(grid)? };
+        operators.push(projection.solver.operator_name());
+        Ok(Self { grid, config, source_mask, viscosity, projection, operators })
+    }
+
+    /// The operators this stepper runs, in order, e.g. `["grid3d.advect.mac_cormack(density)",
+    /// "grid3d.source.sphere", "grid3d.advect.mac_cormack(velocity)", "grid3d.buoyancy",
+    /// "grid3d.pressure.sparse_cholesky"]`.
+    pub fn operators(&self) -> &[&'static str] {
+        &self.operators
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &Smoke3dConfig {
+        &self.config
+    }
+
+    /// The grid.
+    pub fn grid(&self) -> &Grid3d {
+        &self.grid
+    }
+
+    /// The pressure solver (shared).
+    pub fn solver(&self) -> &BoxSolver {
+        &self.projection.solver
+    }
+
+    /// The source's 0/1 cell mask `[1, 1, nz, ny, nx]` (f64), when there is a source.
+    pub fn source_mask(&self) -> Option<&Tensor> {
+        self.source_mask.as_ref()
+    }
+
+    /// The density mass `sum(rho) dx dy dz` one step injects at the configured rate.
+    pub fn injected_per_step(&self) -> f64 {
+        match (&self.config.source, &self.source_mask) {
+            (Some(s), Some(_)) => {
+                let [dx, dy, dz] = self.grid.spacing();
+                s.rate * self.config.dt * s.cells(&self.grid) as f64 * dx * dy * dz
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// A state at rest with zero density, batch `batch`.
+    pub fn rest(&self, batch: usize, dtype: DType) -> Result<Smoke3dState> {
+        let velocity = MacField3d::zeros(self.grid, batch, dtype)?;
+        let density = Tensor::zeros(self.grid.shape(batch, 1).to_vec(), dtype, &Device::Cpu)?;
+        Ok(Smoke3dState { velocity, density })
+    }
+
+    /// Projects a velocity (use once on an initial condition).
+    pub fn project(&self, u: &MacField3d) -> Result<MacField3d> {
+        u.check_stepper_grid(&self.grid)?;
+        Ok(MacField3d::from_parts(self.projection.apply(u.values())?, self.grid))
+    }
+
+    /// `dt (max|u|/dx + max|v|/dy + max|w|/dz)` of a state (typed error when it is not finite).
+    pub fn cfl(&self, state: &Smoke3dState) -> Result<f64> {
+        let m = state.velocity.max_abs_components()?;
+        let h = self.grid.spacing();
+        Ok(self.config.dt * (0..3).map(|a| m[a] / h[a]).sum::<f64>())
+    }
+
+    fn check_state(&self, state: &Smoke3dState) -> Result<()> {
+        state.velocity.check_stepper_grid(&self.grid)?;
+        let rho = &state.density;
+        check_values("Smoke3d::step", "density", rho, &self.grid, Some(1))?;
+        if rho.dims()[0] != state.velocity.batch() || rho.dtype() != state.velocity.values().dtype() {
+            return Err(Error::Invalid {
+                field: "density",
+                reason: format!(
+                    "batch {} / dtype {:?} differ from the velocity's {} / {:?}",
+                    rho.dims()[0],
+                    rho.dtype(),
+                    state.velocity.batch(),
+                    state.velocity.values().dtype()
+                ),
+            });
+        }
+        state.velocity.max_abs_components()?;
+        let total = rho.abs()?.sum_all()?.to_dtype(DType::F64)?.to_scalar::<f64>()?;
+        if !total.is_finite() {
+            return Err(Error::NonFinite { what: "density", value: total });
+        }
+        Ok(())
+    }
+
+    /// One step. `rate` overrides the configured inflow rate with a tensor (a scalar, or one
+    /// rate per batch item `[B, 1, 1, 1, 1]`) that receives a gradient; `None` uses the
+    /// configured rate (ignored without a source). Refuses a state on another grid, of
+    /// mismatched batch or dtype, or with non-finite values (typed errors).
+    pub fn step(&self, state: &Smoke3dState, rate: Option<&Tensor>) -> Result<Smoke3dState> {
+        self.check_state(state)?;
+        let (dt, g) = (self.config.dt, self.grid);
+        let u = &state.velocity;
+        // 1. Density.
+        let sl = Sl3d::scalar(&state.density, u, dt)?;
+        let mut rho = match self.config.density_advection {
+            Advection3d::SemiLagrangian => sl.apply(&state.density, u.values())?,
+            Advection3d::MacCormack => sl.mac_cormack(&state.density, u.values())?,
+        };
+        if let (Some(mask), Some(src)) = (&self.source_mask, &self.config.source) {
+            let m = mask.to_dtype(rho.dtype())?;
+            let add = match rate {
+                Some(r) => m.broadcast_mul(&r.to_dtype(rho.dtype())?.affine(dt, 0.0)?)?,
+                None => m.affine(dt * src.rate, 0.0)?,
+            };
+            rho = rho.broadcast_add(&add)?;
+        }
+        // 2. Velocity.
+        let sl = Sl3d::velocity(u, u, dt)?;
+        let mut v = match self.config.advection {
+            Advection3d::SemiLagrangian => sl.apply(u.values(), u.values())?,
+            Advection3d::MacCormack => sl.mac_cormack(u.values(), u.values())?,
+        };
+        if self.config.buoyancy != 0.0 {
+            let f = apply1(&rho, Buoyancy3d { grid: g, beta: self.config.buoyancy * dt })?;
+            v = (v + f)?;
+        }
+        // 3. Viscosity.
+        match &self.viscosity {
+            Some(Visc::Explicit(op)) => v = (&v + op.apply(&v)?.affine(dt, 0.0)?)?,
+            Some(Visc::Implicit(op)) => v = apply1(&v, *op)?,
+            None => {}
+        }
+        // 4. Projection.
+        let v = self.projection.apply(&v)?;
+        Ok(Smoke3dState { velocity: MacField3d::from_parts(v, g), density: rho })
+    }
+}
+
+/// [`Smoke3d`] as a [`pbdl_core::stepper::Stepper`] (state: [`Smoke3dState`]); its step is
+/// [`Smoke3d::step`] at the configured inflow rate.
+impl pbdl_core::stepper::Stepper for Smoke3d {
+    type State = Smoke3dState;
+    type Error = Error;
+
+    fn dt(&self) -> f64 {
+        self.config.dt
+    }
+
+    fn operators(&self) -> Vec<&'static str> {
+        self.operators.clone()
+    }
+
+    /// Full: every operator has a hand-written adjoint (see the module docs).
+    fn differentiability(&self) -> pbdl_core::stepper::Differentiability {
+        pbdl_core::stepper::Differentiability::Full
+    }
+
+    fn step(&self, state: &Smoke3dState) -> Result<Smoke3dState> {
+        Smoke3d::step(self, state, None)
+    }
+}
+
+/// The Boussinesq force `(0, beta rho, 0)` on the faces of a closed-box MAC velocity: `rho`
+/// (`[batch, 1, nz, ny, nx]`) averaged over the two cells each y-face separates; the wall
+/// faces (`y = ly`) and the x- and z-faces get 0. Differentiable (the transpose of the average).
+pub fn buoyancy(density: &Tensor, grid: &Grid3d, beta: f64) -> Result<MacField3d> {
+    grid.validate()?;
+    check_values("grid3d::buoyancy", "density", density, grid, Some(1))?;
+    if !beta.is_finite() {
+        return Err(Error::Invalid { field: "buoyancy", reason: format!("beta must be finite, got {beta}") });
+    }
+    Ok(MacField3d::from_parts(apply1(density, Buoyancy3d { grid: *grid, beta })?, *grid))
+}
+
+/// The buoyancy op: `[b, 1, ...]` to `[b, 3, ...]`.
+#[derive(Clone, Copy, Debug)]
+struct Buoyancy3d {
+    grid: Grid3d,
+    beta: f64,
+}
+
+impl Kernel1 for Buoyancy3d {
+    fn name(&self) -> &'static str {
+        "grid3d_buoyancy"
+    }
+    fn output_shape(&self, s: &Shape) -> candle_core::Result<Shape> {
+        let d = s.dims();
+        let g = &self.grid;
+        if d.len() != 5 || d[1..] != [1, g.nz, g.ny, g.nx] {
+            candle_core::bail!("grid3d_buoyancy: density {d:?} is not one channel on {}x{}x{}", g.nz, g.ny, g.nx);
+        }
+        Ok(Shape::from(vec![d[0], 3, g.nz, g.ny, g.nx]))
+    }
+    fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+        let (nx, ny, n) = (self.grid.nx, self.grid.ny, self.grid.cells());
+        let hb = T::c(0.5 * self.beta);
+        for (xb, ob) in x.chunks(n).zip(out.chunks_mut(3 * n)) {
+            let ov = &mut ob[n..2 * n];
+            for (r, row) in ov.chunks_mut(nx).enumerate() {
+                if r % ny == ny - 1 {
+                    continue; // the wall y = ly
+                }
+                for (i, o) in row.iter_mut().enumerate() {
+                    *o = hb * (xb[r * nx + i] + xb[(r + 1) * nx + i]);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Op1 for Buoyancy3d {
+    fn backward(&self, _x: &Tensor, _y: &Tensor, gy: &Tensor) -> candle_core::Result<Tensor> {
+        apply_kernel1(gy, Buoyancy3dAdjoint(*self))
+    }
+}
+
+/// Transpose of [`Buoyancy3d`]: `[b, 3, ...]` to `[b, 1, ...]`.
+struct Buoyancy3dAdjoint(Buoyancy3d);
+
+impl Kernel1 for Buoyancy3dAdjoint {
+    fn name(&self) -> &'static str {
+        "grid3d_buoyancy_adjoint"
+    }
+    fn output_shape(&self, s: &Shape) -> candle_core::Result<Shape> {
+        let d = s.dims();
+        if d.len() != 5 || d[1] != 3 {
+            candle_core::bail!("grid3d_buoyancy_adjoint: cotangent {d:?} is not a 3D MAC velocity");
+        }
+        Ok(Shape::from(vec![d[0], 1, d[2], d[3], d[4]]))
+    }
+    fn forward<T: Real>(&self, g: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+        let op = self.0;
+        let (nx, ny, n) = (op.grid.nx, op.grid.ny, op.grid.cells());
+        let hb = T::c(0.5 * op.beta);
+        for (gb, ob) in g.chunks(3 * n).zip(out.chunks_mut(n)) {
+            let gv = &gb[n..2 * n];
+            for r in 0..n / nx {
+                if r % ny == ny - 1 {
+                    continue;
+                }
+                for i in 0..nx {
+                    let a = hb * gv[r * nx + i];
+                    ob[r * nx + i] += a;
+                    ob[(r + 1) * nx + i] += a;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Relative residual at which the implicit viscous solve stops: near round-off, so that its
+/// gradient (one more solve) agrees with finite differences.
+const VISCOSITY_REL_TOL: f64 = 1e-13;
+/// Iteration cap of the implicit viscous solve.
+const VISCOSITY_MAX_ITER: usize = 5000;
+
+/// Backward-Euler viscosity `(I - nu dt L)^-1 u` per component with the no-slip ghost rules of
+/// [`super::walls`] (a face across a wall along the component's own axis is 0; a tangential
+/// ghost is `-q_inner`), wall faces 0 in and out; unpreconditioned CG in f64. `I - nu dt L` is
+/// symmetric positive definite (eigenvalues >= 1), so the backward is the same solve of the
+/// cotangent.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ImplicitViscosity3d {
+    pub grid: Grid3d,
+    pub nu_dt: f64,
+}
+
+impl ImplicitViscosity3d {
+    /// `y = (I - nu dt L) x` for component `c` (wall faces of `x` are ignored, of `y` set to 0).
+    fn matvec(&self, c: usize, x: &[f64], y: &mut [f64]) {
+        let n = [self.grid.nx, self.grid.ny, self.grid.nz];
+        let st = [1, n[0], n[0] * n[1]];
+        let w = self.grid.spacing().map(|h| self.nu_dt / (h * h));
+        for (m, ym) in y.iter_mut().enumerate() {
+            let p = [m % n[0], (m / n[0]) % n[1], m / st[2]];
+            if p[c] == n[c] - 1 {
+                *ym = 0.0;
+                continue;
+            }
+            let xm = x[m];
+            let mut s = xm;
+            for a in 0..3 {
+                // Neighbour above / below along a; a wall along c is 0, a tangential ghost -x.
+                let hi_in = if a == c { p[a] + 2 < n[a] } else { p[a] + 1 < n[a] };
+                let up = if hi_in {
+                    x[m + st[a]]
+                } else if a == c {
+                    0.0
+                } else {
+                    -xm
+                };
+                let down = if p[a] > 0 {
+                    x[m - st[a]]
+                } else if a == c {
+                    0.0
+                } else {
+                    -xm
+                };
+                s -= w[a] * (up + down - 2.0 * xm);
+            }
+            *ym = s;
+        }
+    }
+
+    /// Solves `(I - nu dt L) x = b` for component `c` by CG (`b`'s wall faces are ignored).
+    fn solve(&self, c: usize, b: &mut [f64], x: &mut [f64]) -> candle_core::Result<()> {
+        let n = [self.grid.nx, self.grid.ny, self.grid.nz];
+        let nxy = n[0] * n[1];
+        for (m, bm) in b.iter_mut().enumerate() {
+            let p = [m % n[0], (m / n[0]) % n[1], m / nxy];
+            if p[c] == n[c] - 1 {
+                *bm = 0.0;
+            }
+        }
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+        let bnorm = dot(b, b).sqrt();
+        x.copy_from_slice(b);
+        if bnorm == 0.0 {
+            return Ok(());
+        }
+        let mut r = vec![0.0; b.len()];
+        self.matvec(c, x, &mut r);
+        for (ri, bi) in r.iter_mut().zip(b.iter()) {
+            *ri = bi - *ri;
+        }
+        let mut p = r.clone();
+        let mut ap = vec![0.0; b.len()];
+        let mut rr = dot(&r, &r);
+        for _ in 0..VISCOSITY_MAX_ITER {
+            if rr.sqrt() <= VISCOSITY_REL_TOL * bnorm {
+                return Ok(());
+            }
+            self.matvec(c, &p, &mut ap);
+            let alpha = rr / dot(&p, &ap);
+            for ((xi, ri), (pi, api)) in x.iter_mut().zip(r.iter_mut()).zip(p.iter().zip(&ap)) {
+                *xi += alpha * pi;
+                *ri -= alpha * api;
+            }
+            let rr_new = dot(&r, &r);
+            let beta = rr_new / rr;
+            rr = rr_new;
+            for (pi, ri) in p.iter_mut().zip(&r) {
+                *pi = ri + beta * *pi;
+            }
+        }
+        candle_core::bail!(
+            "grid3d implicit viscosity: CG not converged after {VISCOSITY_MAX_ITER} iterations (relative residual {:.3e})",
+            rr.sqrt() / bnorm
+        )
+    }
+}
+
+impl Kernel1 for ImplicitViscosity3d {
+    fn name(&self) -> &'static str {
+        "grid3d_implicit_viscosity"
+    }
+    fn output_shape(&self, s: &Shape) -> candle_core::Result<Shape> {
+        super::momentum::check_shape(self.name(), s, &self.grid)?;
+        Ok(s.clone())
+    }
+    fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+        let n = self.grid.cells();
+        let (mut b, mut y) = (vec![0.0f64; n], vec![0.0f64; n]);
+        for (xb, ob) in x.chunks(3 * n).zip(out.chunks_mut(3 * n)) {
+            for c in 0..3 {
+                for (bi, xi) in b.iter_mut().zip(&xb[c * n..(c + 1) * n]) {
+                    *bi = xi.wide();
+                }
+                self.solve(c, &mut b, &mut y)?;
+                for (o, yi) in ob[c * n..(c + 1) * n].iter_mut().zip(&y) {
+                    *o = T::c(*yi);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Op1 for ImplicitViscosity3d {
+    fn backward(&self, _x: &Tensor, _y: &Tensor, gy: &Tensor) -> candle_core::Result<Tensor> {
+        // Symmetric on the interior faces, zero on the wall faces in and out.
+        apply1(gy, *self)
+    }
+}
+
+/// One backward-Euler viscous step `(I - nu dt L)^-1 u` in the no-slip box (wall faces 0).
+/// Differentiable (the backward is the same solve). `nu dt >= 0`.
+pub fn implicit_viscosity(u: &MacField3d, nu: f64, dt: f64) -> Result<MacField3d> {
+    if !(nu >= 0.0 && nu.is_finite() && dt >= 0.0 && dt.is_finite()) {
+        return Err(Error::Invalid { field: "nu", reason: format!("need finite nu >= 0 and dt >= 0, got {nu}, {dt}") });
+    }
+    let op = ImplicitViscosity3d { grid: *u.grid(), nu_dt: nu * dt };
+    Ok(MacField3d::from_parts(apply1(u.values(), op)?, *u.grid()))
+}
