@@ -1,4 +1,4 @@
-//! The pseudo-spectral entries of `cargo xtask`: the tour's decaying turbulence (quick: 64^2)
+//! The pseudo-spectral and 3D smoke entries of `cargo xtask`: the tour's decaying turbulence (quick: 64^2)
 //! writes its renders and closes the energy budget, the bench rows carry finite errors at the
 //! level the tests of pbdl-grid show, and the stress checks pass.
 
@@ -28,4 +28,20 @@ fn spectral_tour_bench_and_stress_entries_run() {
     let checks = stress_spectral_high_re(&ctx).unwrap();
     assert!(checks.iter().all(|c| c.passed), "{checks:?}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn smoke3d_bench_and_stress_entries_run() {
+    let ctx = TaskContext { out_dir: std::env::temp_dir(), quick: true, threads: 2 };
+    let rows = xtask::entries::smoke3d::bench_smoke3d(&ctx).unwrap();
+    assert_eq!(rows.len(), 2);
+    for r in &rows {
+        println!("{} {} {:.3e} s, divergence {:.2e}", r.case, r.size, r.seconds, r.error.unwrap());
+        assert!(r.error.unwrap() < 1e-5);
+    }
+    let checks = xtask::entries::smoke3d::stress_smoke3d(&ctx).unwrap();
+    for c in &checks {
+        println!("{}: {} ({})", c.invariant, c.passed, c.detail);
+    }
+    assert!(checks.iter().all(|c| c.passed));
 }

@@ -78,6 +78,11 @@ pub fn tasks() -> CrateTasks {
         ],
         bench: vec![
             Entry {
+                name: "smoke3d",
+                about: "3D smoke plume (f32, MacCormack, walled projection): time per step at 32^3, 64^3, 128^3 (16^3, 32^3 quick), divergence after the step.",
+                run: super::smoke3d::bench_smoke3d,
+            },
+            Entry {
                 name: "spectral",
                 about: "Pseudo-spectral Navier-Stokes (f32, CN-RK4): Taylor-Green 32^2..256^2 vs analytic, decaying turbulence 64^2/128^2 vs 3x finer; JAX-CFD's spectral rows from bench/peers/run.sh.",
                 run: super::spectral::bench_spectral,
@@ -119,6 +124,11 @@ pub fn tasks() -> CrateTasks {
                 name: "smoke_plume_long",
                 about: "Smoke plume, 10,000 steps at 128^2 (500 quick): finite, divergence bounded, density in [0, injected].",
                 run: stress_smoke,
+            },
+            Entry {
+                name: "smoke3d_plume_64",
+                about: "3D smoke plume, 2,000 steps at 64^3 f32 (~35 min; 200 at 16^3 quick): finite, divergence <= 1e-5 every step, mass reported.",
+                run: super::smoke3d::stress_smoke3d,
             },
             Entry {
                 name: "spectral_high_re",

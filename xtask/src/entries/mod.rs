@@ -9,6 +9,7 @@ pub mod metrics;
 pub mod nets;
 pub mod optim;
 pub mod particles;
+pub mod smoke3d;
 pub mod spectral;
 pub mod stability;
 pub mod weather;
