@@ -44,6 +44,70 @@ impl Bc {
     }
 }
 
+/// A non-uniform velocity profile on the inflow face `x = 0` of a channel `0 <= y <= ly`.
+///
+/// The per-face [`Bc`] values are constant along a face; a profile is imposed by the
+/// [`crate::Fluid`] stepper instead ([`crate::fluid::FluidOptions::inflow_profile`]): the first
+/// column of cells (`0 < x < dx`) becomes a solid buffer outside the pressure solve, and the
+/// `u` faces at `x = dx` between it and the fluid carry the profile exactly (the projection keeps
+/// them and counts their flux, [`crate::pressure::MaskedPressureSolver::with_prescribed_faces`]).
+/// The inflow plane is therefore `x = dx`: lay out the grid one cell longer than the channel
+/// and shift the geometry by `dx` (as tests/schaefer_turek.rs does; the scene kind `cylinder`
+/// with `inflow_profile = "parabolic"` leaves that to the scene file).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InflowProfile {
+    /// The uniform speed of the `x_lo` condition (no profile; the default).
+    #[default]
+    Uniform,
+    /// Poiseuille profile `u(y) = 4 U_m y (ly - y) / ly^2` (`U_m` the centreline speed, the
+    /// mean speed is `2 U_m / 3`), `v = 0`: the inflow of the Schaefer & Turek (1996) benchmarks.
+    Parabolic {
+        /// Centreline (maximum) speed `U_m`.
+        max_velocity: f64,
+    },
+}
+
+impl InflowProfile {
+    /// The `x` velocity of the profile at height `y` in a channel of height `ly` (`None` for
+    /// [`InflowProfile::Uniform`]).
+    pub fn velocity(&self, y: f64, ly: f64) -> Option<f64> {
+        match *self {
+            InflowProfile::Uniform => None,
+            InflowProfile::Parabolic { max_velocity } => Some(4.0 * max_velocity * y * (ly - y) / (ly * ly)),
+        }
+    }
+
+    /// The mean speed over the channel height (`2 U_m / 3` for the parabola).
+    pub fn mean_velocity(&self) -> Option<f64> {
+        match *self {
+            InflowProfile::Uniform => None,
+            InflowProfile::Parabolic { max_velocity } => Some(2.0 * max_velocity / 3.0),
+        }
+    }
+}
+
+/// The shape of an inflow profile, as a scene names it (`inflow_profile = "parabolic"`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InflowShape {
+    /// Uniform (default).
+    #[default]
+    Uniform,
+    /// Parabolic ([`InflowProfile::Parabolic`]).
+    Parabolic,
+}
+
+impl InflowShape {
+    /// The profile with centreline (or uniform) speed `speed`.
+    pub fn profile(self, speed: f64) -> InflowProfile {
+        match self {
+            InflowShape::Uniform => InflowProfile::Uniform,
+            InflowShape::Parabolic => InflowProfile::Parabolic { max_velocity: speed },
+        }
+    }
+}
+
 /// The four faces of a 2D domain with their velocity conditions.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -98,6 +162,13 @@ impl Boundaries {
     /// Periodic in both directions.
     pub fn periodic() -> Self {
         Self { x_lo: Bc::Periodic, x_hi: Bc::Periodic, y_lo: Bc::Periodic, y_hi: Bc::Periodic }
+    }
+
+    /// A channel along x: `inflow` (an [`Bc::Inflow`] velocity `[u, 0]`) at `x = 0`, outflow at
+    /// `x = lx`, no-slip walls at `y = 0` and `y = ly` (the Schaefer & Turek setting; give the
+    /// parabolic profile with [`InflowProfile`]).
+    pub fn channel(inflow: f64) -> Self {
+        Self { x_lo: Bc::Inflow { velocity: [inflow, 0.0] }, x_hi: Bc::Outflow, y_lo: Bc::NoSlip, y_hi: Bc::NoSlip }
     }
 
     /// A closed box of no-slip walls whose top wall (`y_hi`) slides at `lid` along +x.

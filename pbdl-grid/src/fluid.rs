@@ -9,6 +9,12 @@
 //! 4. velocity source (e.g. an inlet profile), when one was given;
 //! 5. projection: FFT / sparse Cholesky, or the masked Cholesky when there are obstacles.
 //!
+//! [`Fluid::with_options`] adds, through [`FluidOptions`], a no-slip treatment of curved
+//! obstacle surfaces better than the staircase mask ([`ObstacleTreatment::ImmersedBoundary`]: a
+//! direct-forcing immersed boundary, second order in the wall position, alternated with the
+//! projection) and an inflow profile ([`InflowProfile::Parabolic`], held on the `u` faces at
+//! `x = dx`).
+//!
 //! A [`Fluid`] is *built* once from a [`FluidConfig`] and holds only what it needs: no density
 //! operators without density, no diffusion solve at `nu = 0`, no mask without obstacles;
 //! [`Fluid::operators`] lists them. Semi-Lagrangian and MacCormack advection (the limiter keeps
@@ -22,11 +28,12 @@
 //! inflow rate and the initial state.
 
 use crate::advect::{conservative, mac_cormack, semi_lagrangian, Advected, MomentumRhs};
+use crate::boundary::InflowProfile;
 use crate::diffuse::ImplicitDiffusion;
 use crate::field::{CenteredField, MacField};
 use crate::forcing::{buoyancy, DensitySource, VelocitySource};
 use crate::navier_stokes::max_abs_components;
-use crate::obstacle::{Obstacle, ObstacleMask};
+use crate::obstacle::{ImmersedBoundary, Obstacle, ObstacleMask, ObstacleTreatment};
 use crate::pressure::{MaskedPressureSolver, MaskedProjection, PressureSolver, Projection};
 use crate::stability::{check_time_step, stable_time_step};
 use crate::time_stepping::projected_runge_kutta;
@@ -80,6 +87,22 @@ pub struct FluidConfig {
     pub obstacles: Vec<Obstacle>,
 }
 
+/// Options of a [`Fluid`] beyond [`FluidConfig`] ([`Fluid::with_options`]); the default is what
+/// [`Fluid::new`] builds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidOptions {
+    /// How the obstacle surfaces are treated. Default: the staircase mask.
+    #[serde(default)]
+    pub obstacle_treatment: ObstacleTreatment,
+    /// Inflow profile at `x = 0`. Default: uniform (the `x_lo` condition). A profile turns the
+    /// first cell column into a solid buffer and holds the profile on the `u` faces at
+    /// `x = dx`: the inflow plane is `x = dx` (see [`InflowProfile`]); `x_lo` must then be a
+    /// wall or an inflow (its values no longer reach the fluid).
+    #[serde(default)]
+    pub inflow_profile: InflowProfile,
+}
+
 /// The state a [`Fluid`] advances.
 #[derive(Clone, Debug)]
 pub struct FluidState {
@@ -106,6 +129,9 @@ pub struct Fluid {
     velocity_source: Option<VelocitySource>,
     mask: Option<ObstacleMask>,
     projection: Proj,
+    /// The immersed-boundary forcing and its number of forcing / projection pairs.
+    immersed: Option<(ImmersedBoundary, usize)>,
+    options: FluidOptions,
     operators: Vec<&'static str>,
 }
 
@@ -124,6 +150,20 @@ impl Fluid {
     /// buoyancy and inflow). Factors the pressure matrix (masked with obstacles) and, when
     /// `nu > 0`, the implicit viscosity matrices.
     pub fn new(grid: Grid, bc: Boundaries, density_bc: Option<ScalarBoundaries>, config: FluidConfig) -> Result<Self> {
+        Self::with_options(grid, bc, density_bc, config, FluidOptions::default())
+    }
+
+    /// [`Fluid::new`] with [`FluidOptions`]: an immersed-boundary treatment of the obstacles
+    /// (the pressure solve then covers the obstacles too) and / or an inflow profile (the first
+    /// cell column then leaves the pressure solve and the `u` faces at `x = dx` carry the
+    /// profile).
+    pub fn with_options(
+        grid: Grid,
+        bc: Boundaries,
+        density_bc: Option<ScalarBoundaries>,
+        config: FluidConfig,
+        options: FluidOptions,
+    ) -> Result<Self> {
         grid.validate()?;
         bc.validate()?;
         if let Some(d) = &density_bc {
@@ -208,15 +248,68 @@ impl Fluid {
         } else {
             None
         };
-        let (mask, projection) = if config.obstacles.is_empty() {
+        let immersed = match options.obstacle_treatment {
+            ObstacleTreatment::ImmersedBoundary { iterations } if !config.obstacles.is_empty() => {
+                if iterations == 0 {
+                    return Err(Error::Invalid {
+                        field: "obstacle_treatment",
+                        reason: "the immersed boundary needs at least 1 forcing / projection pair".into(),
+                    });
+                }
+                operators.push("obstacles.immersed_boundary");
+                Some((ImmersedBoundary::new(grid, &bc, &config.obstacles)?, iterations))
+            }
+            _ => None,
+        };
+        let staircase = if immersed.is_none() { config.obstacles.as_slice() } else { &[] };
+        let profile: Option<Vec<f64>> = match options.inflow_profile {
+            InflowProfile::Uniform => None,
+            p => {
+                if bc.x_lo == crate::Bc::Periodic || bc.x_lo == crate::Bc::Outflow {
+                    return Err(Error::Invalid {
+                        field: "inflow_profile",
+                        reason: format!("an inflow profile needs a wall or an inflow at x_lo, got {:?}", bc.x_lo),
+                    });
+                }
+                if let InflowProfile::Parabolic { max_velocity } = p {
+                    if !max_velocity.is_finite() {
+                        return Err(Error::Invalid {
+                            field: "inflow_profile",
+                            reason: format!("max_velocity must be finite, got {max_velocity}"),
+                        });
+                    }
+                }
+                operators.push("inflow.profile");
+                let (nx, ny, dy) = (grid.nx, grid.ny, grid.dy());
+                let mut b = vec![0.0; 2 * nx * ny];
+                for j in 0..ny {
+                    b[j * nx] = p.velocity((j as f64 + 0.5) * dy, grid.ly).unwrap_or(0.0);
+                }
+                Some(b)
+            }
+        };
+        let (mask, projection) = if staircase.is_empty() && profile.is_none() {
             let solver = PressureSolver::new(grid, &bc)?;
             operators.push(if solver.method_name() == "fft" { "pressure.fft" } else { "pressure.sparse_cholesky" });
             (None, Proj::Plain(Box::new(Projection::new(grid, &bc, &solver)?)))
         } else {
-            let mask = ObstacleMask::new(grid, &config.obstacles)?;
-            operators.push("obstacles");
+            let mut solid = if staircase.is_empty() {
+                vec![false; grid.cells()]
+            } else {
+                operators.push("obstacles");
+                ObstacleMask::new(grid, staircase)?.solid_flags()
+            };
+            if profile.is_some() {
+                for j in 0..grid.ny {
+                    solid[j * grid.nx] = true;
+                }
+            }
+            let mask = ObstacleMask::from_cells(grid, solid)?;
             operators.push("pressure.masked_cholesky");
-            let solver = MaskedPressureSolver::new(grid, &bc, &mask)?;
+            let solver = match &profile {
+                Some(b) => MaskedPressureSolver::with_prescribed_faces(grid, &bc, &mask, b)?,
+                None => MaskedPressureSolver::new(grid, &bc, &mask)?,
+            };
             (Some(mask), Proj::Masked(MaskedProjection(solver)))
         };
         if central {
@@ -233,8 +326,20 @@ impl Fluid {
             velocity_source: None,
             mask,
             projection,
+            immersed,
+            options,
             operators,
         })
+    }
+
+    /// The options it was built with.
+    pub fn options(&self) -> &FluidOptions {
+        &self.options
+    }
+
+    /// The immersed-boundary forcing, when the obstacles are treated that way.
+    pub fn immersed_boundary(&self) -> Option<&ImmersedBoundary> {
+        self.immersed.as_ref().map(|(ib, _)| ib)
     }
 
     /// Adds a velocity source (e.g. an inlet profile), applied before the projection.
@@ -258,7 +363,8 @@ impl Fluid {
         &self.config
     }
 
-    /// The obstacle mask, when there are obstacles.
+    /// The mask of the cells out of the pressure solve: staircase obstacles and, with an inflow
+    /// profile, the buffer column `0 < x < dx` (`None` when there are neither).
     pub fn mask(&self) -> Option<&ObstacleMask> {
         self.mask.as_ref()
     }
@@ -295,11 +401,24 @@ impl Fluid {
         Ok(FluidState { velocity, density })
     }
 
-    /// Projects a velocity (use once on an initial condition).
+    /// Projects a velocity (use once on an initial condition). With the immersed boundary, the
+    /// forcing and the projection alternate `iterations` times (ending with a projection).
     pub fn project(&self, u: &MacField) -> Result<MacField> {
-        let v = match &self.projection {
-            Proj::Plain(p) => p.apply(u.values())?,
-            Proj::Masked(p) => p.apply(u.values())?,
+        let proj = |x: &Tensor| -> Result<Tensor> {
+            Ok(match &self.projection {
+                Proj::Plain(p) => p.apply(x)?,
+                Proj::Masked(p) => p.apply(x)?,
+            })
+        };
+        let v = match &self.immersed {
+            Some((ib, iterations)) => {
+                let mut v = u.values().clone();
+                for _ in 0..*iterations {
+                    v = proj(&ib.apply(&v)?)?;
+                }
+                v
+            }
+            None => proj(u.values())?,
         };
         Ok(MacField::from_parts(v, self.grid, self.bc))
     }

@@ -18,7 +18,8 @@
 //! | [`stability`] | [`stability::stable_time_step`], [`stability::check_time_step`] (typed [`Error::Unstable`]) |
 //! | [`scalar_law`] | [`scalar_law::ScalarLaw`]: periodic 1D/2D viscous Burgers and advection-diffusion (conservative, second order, differentiable), [`scalar_law::cole_hopf_sine`] |
 //! | [`scene`] | [`scene::Scene`]: TOML scenes (embedded defaults), built into a [`scene::Simulation`] that holds only the operators the scene needs (one file per physics kind behind one trait) |
-//! | [`obstacle`] | [`Obstacle`] (cylinder, box), [`ObstacleMask`]; masked projection in [`pressure::make_incompressible_masked`] |
+//! | [`obstacle`] | [`Obstacle`] (cylinder, box), [`ObstacleMask`]; masked projection in [`pressure::make_incompressible_masked`]; [`obstacle::ImmersedBoundary`]: direct-forcing no-slip on curved surfaces (second order, [`obstacle::ObstacleTreatment`]) |
+//! | [`forces`] | [`forces::ControlVolume`]: force of the fluid on the obstacles inside a rectangle (drag, lift) by a control-volume momentum balance (pressure recovered along the contour), [`forces::coefficients`] (`c_D`, `c_L`) |
 //! | [`forcing`] | [`forcing::buoyancy`] (Boussinesq), [`forcing::DensitySource`], [`forcing::VelocitySource`] |
 //! | [`fluid`] | [`Fluid`]: smoke plume / obstacle-flow stepper (semi-Lagrangian or MacCormack; conservative flux-corrected transport for the density, buoyancy, inflow, implicit viscosity, obstacles), listing its operators |
 //! | [`spectral`] | [`spectral::SpectralNavierStokes`]: 2D pseudo-spectral Navier-Stokes for periodic boxes (vorticity form, 2/3 dealiasing, low-storage IMEX CN-RK4/RK3, f32/f64), a fast path and a differentiable one; scene kind `navier_stokes_spectral` |
@@ -55,6 +56,7 @@ pub mod fd;
 pub mod field;
 mod float;
 pub mod fluid;
+pub mod forces;
 pub mod forcing;
 pub mod grid3d;
 mod laplacian_matrix;

@@ -31,6 +31,9 @@ pub struct MaskedPressureSolver {
     mv: Vec<f64>,
     /// `-L_m` on the fluid cells, factored (first fluid cell pinned when singular).
     poisson: Factored,
+    /// The constant part `c = b - m G L_m^+ D b` of the projection when closed faces carry
+    /// prescribed velocities `b` ([`MaskedPressureSolver::with_prescribed_faces`]), `[2, ny, nx]`.
+    prescribed: Option<Vec<f64>>,
 }
 
 impl std::fmt::Debug for MaskedPressureSolver {
@@ -67,7 +70,74 @@ impl MaskedPressureSolver {
         let hint = "; is the fluid region connected and, with an outflow, connected to it?";
         let poisson = Factored::new(&spec, true, "masked pressure cholesky", hint)?;
         let (mu, mv) = mask.face_masks(bc);
-        Ok(Arc::new(Self { grid, bc: *bc, mac: bc.mac_ghosts(nx, ny), p: g, index, fluid, mu, mv, poisson }))
+        Ok(Arc::new(Self {
+            grid,
+            bc: *bc,
+            mac: bc.mac_ghosts(nx, ny),
+            p: g,
+            index,
+            fluid,
+            mu,
+            mv,
+            poisson,
+            prescribed: None,
+        }))
+    }
+
+    /// The same solve, with prescribed velocities on closed faces (e.g. an inflow profile on the
+    /// faces between a solid buffer column and the fluid). `values` (`[2, ny, nx]` layout, `u`
+    /// then `v`) gives the velocity of every closed face (faces touching a solid cell); values on
+    /// open faces must be 0. The projection becomes affine,
+    /// `u -> P_m u + c`, `c = b - m G L_m^+ D b`: the prescribed faces keep `b`, and their flux
+    /// enters the divergence of the neighbouring fluid cells, so the result is divergence-free
+    /// in the fluid with the prescribed flux. The vector-Jacobian product is that of `P_m`.
+    pub fn with_prescribed_faces(
+        grid: Grid,
+        bc: &Boundaries,
+        mask: &ObstacleMask,
+        values: &[f64],
+    ) -> Result<Arc<Self>> {
+        let base = Self::new(grid, bc, mask)?;
+        let n = grid.cells();
+        if values.len() != 2 * n || values.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Invalid {
+                field: "prescribed",
+                reason: format!("needs {} finite face values ([2, ny, nx]), got {}", 2 * n, values.len()),
+            });
+        }
+        let (mu, mv) = (&base.mu, &base.mv);
+        if let Some(k) = (0..2 * n).find(|&k| values[k] != 0.0 && if k < n { mu[k] } else { mv[k - n] } != 0.0) {
+            return Err(Error::Invalid {
+                field: "prescribed",
+                reason: format!(
+                    "face {k} is open (not next to a solid cell); only closed faces take prescribed values"
+                ),
+            });
+        }
+        // Open the prescribed faces for the divergence, project b, and put b back on them.
+        let mut mu2 = mu.clone();
+        let mut mv2 = mv.clone();
+        for k in 0..2 * n {
+            if values[k] != 0.0 {
+                if k < n {
+                    mu2[k] = 1.0;
+                } else {
+                    mv2[k - n] = 1.0;
+                }
+            }
+        }
+        let faces = Faces { grid: &base.grid, mac: &base.mac, p: &base.p, open: Some((&mu2, &mv2)) };
+        let mut c = vec![0.0; 2 * n];
+        faces.forward(values, &mut c, |r, o| base.solve_slice(r, o));
+        for k in 0..2 * n {
+            if values[k] != 0.0 {
+                c[k] = values[k];
+            }
+        }
+        let mut s =
+            Arc::try_unwrap(base).map_err(|_| Error::Invalid { field: "prescribed", reason: "shared".into() })?;
+        s.prescribed = Some(c);
+        Ok(Arc::new(s))
     }
 
     /// The grid.
@@ -146,6 +216,13 @@ impl Kernel1 for MaskedProjection {
     fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
         let s = &*self.0;
         s.faces().forward(x, out, |r, o| s.solve_slice(r, o));
+        if let Some(c) = &s.prescribed {
+            for ob in out.chunks_mut(c.len()) {
+                for (o, &ci) in ob.iter_mut().zip(c) {
+                    *o += T::c(ci);
+                }
+            }
+        }
         Ok(())
     }
 }

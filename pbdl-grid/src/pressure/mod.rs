@@ -26,7 +26,7 @@ mod project;
 mod solver;
 
 pub use cg::{make_incompressible_masked_cg, CgPreconditioner, CgPressureSolver, CgSettings, CgStats};
-pub(crate) use masked::MaskedProjection;
+pub(crate) use masked::{check_mac_shape, MaskedProjection};
 pub use masked::{make_incompressible_masked, MaskedPressureSolver};
 pub use project::make_incompressible;
 pub(crate) use project::Projection;

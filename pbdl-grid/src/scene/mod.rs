@@ -301,12 +301,31 @@ pub enum Physics {
     },
     /// Flow past obstacles (the Karman street behind a cylinder); obstacles from `obstacles`.
     /// Uniform inflow at `x = 0`, zero-gradient outflow at `x = lx`, free-slip walls at
-    /// `y = 0, ly`.
+    /// `y = 0, ly` by default. `inflow_profile = "parabolic"` makes the inflow the Poiseuille
+    /// profile `4 inflow y (ly - y) / ly^2` held on the `u` faces at `x = dx` (the first cell
+    /// column becomes a buffer outside the flow, see [`crate::boundary::InflowProfile`]);
+    /// `walls = { kind = "no_slip" }` gives no-slip channel walls; `surface = { kind =
+    /// "immersed_boundary", iterations = 2 }` treats the obstacle surfaces by the direct-forcing
+    /// immersed boundary ([`crate::obstacle::ImmersedBoundary`]) instead of the staircase mask.
+    /// With all three (and `nu = 1e-3`, `inflow = 0.3` or `1.5`, a circle of radius 0.05 at
+    /// `(0.2 + dx, 0.2)` in `2.2 + dx` x 0.41) this is the Schaefer & Turek (1996) 2D-1 / 2D-2
+    /// benchmark (tests/schaefer_turek.rs).
     Cylinder {
         /// Viscosity (> 0).
         nu: f64,
-        /// Inflow speed at `x = 0`.
+        /// Inflow speed at `x = 0` (the centreline speed with a parabolic profile).
         inflow: f64,
+        /// `uniform` (default) or `parabolic`.
+        #[serde(default, skip_serializing_if = "is_default")]
+        inflow_profile: crate::boundary::InflowShape,
+        /// Condition on the walls `y = 0, ly`: `{ kind = "free_slip" }` (default) or
+        /// `{ kind = "no_slip" }`.
+        #[serde(default = "free_slip", skip_serializing_if = "is_free_slip")]
+        walls: Bc,
+        /// Obstacle surfaces: `{ kind = "staircase" }` (default) or
+        /// `{ kind = "immersed_boundary", iterations = 2 }`.
+        #[serde(default, skip_serializing_if = "is_default")]
+        surface: crate::obstacle::ObstacleTreatment,
         /// Velocity advection (`semi_lagrangian`, `mac_cormack`, `central_rk4`). Default:
         /// MacCormack.
         #[serde(default)]
@@ -321,6 +340,18 @@ pub enum Physics {
 
 fn default_kick() -> f64 {
     0.3
+}
+
+fn free_slip() -> Bc {
+    Bc::FreeSlip
+}
+
+fn is_free_slip(b: &Bc) -> bool {
+    *b == Bc::FreeSlip
+}
+
+fn is_default<T: Default + PartialEq>(t: &T) -> bool {
+    *t == T::default()
 }
 
 fn closed_box() -> Boundaries {
@@ -632,7 +663,15 @@ impl Scene {
                 }
                 nonneg("physics.source.rate", source.rate)?;
             }
-            Physics::Cylinder { nu, inflow, kick, .. } => {
+            Physics::Cylinder { nu, inflow, kick, walls, surface, .. } => {
+                if !matches!(walls, Bc::NoSlip | Bc::FreeSlip) {
+                    return bad("physics.walls", format!("must be no_slip or free_slip, got {walls:?}"));
+                }
+                if let crate::obstacle::ObstacleTreatment::ImmersedBoundary { iterations } = surface {
+                    if *iterations == 0 {
+                        return bad("physics.surface.iterations", "must be >= 1".into());
+                    }
+                }
                 if !(*nu > 0.0 && nu.is_finite()) {
                     return bad("physics.nu", format!("the cylinder flow needs a positive viscosity, got {nu}"));
                 }

@@ -83,8 +83,8 @@ pub(crate) fn build(setup: &Setup<'_>) -> SceneResult<(Box<dyn PhysicsKind>, f64
         Physics::Smoke { nu, buoyancy, boundaries, source, advection, density_advection } => {
             boxed(smoke::build(setup, *nu, *buoyancy, boundaries, source, *advection, *density_advection)?)
         }
-        Physics::Cylinder { nu, inflow, advection, kick } => {
-            boxed(cylinder::build(setup, *nu, *inflow, *advection, *kick)?)
+        Physics::Cylinder { nu, inflow, advection, kick, inflow_profile, walls, surface } => {
+            boxed(cylinder::build(setup, *nu, *inflow, *advection, *kick, (*inflow_profile, *walls, *surface))?)
         }
     })
 }
