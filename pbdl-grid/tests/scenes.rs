@@ -214,6 +214,7 @@ fn energy(s: &State) -> f64 {
         State::Scalar(t) => values(t).iter().map(|v| v * v).sum::<f64>() * 0.5,
         State::Smoke(s) => values(s.velocity.values()).iter().map(|v| v * v).sum::<f64>() * 0.5,
         State::Velocity3d(u) => values(u).iter().map(|v| v * v).sum::<f64>() * 0.5,
+        State::Smoke3d(s) => values(s.velocity.values()).iter().map(|v| v * v).sum::<f64>() * 0.5,
     }
 }
 

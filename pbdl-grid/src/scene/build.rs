@@ -18,6 +18,8 @@ pub enum State {
     Smoke(FluidState),
     /// A cell-centred 3D velocity `[1, 3, nz, ny, nx]` (3D `navier_stokes_spectral` scenes).
     Velocity3d(Tensor),
+    /// A walled 3D MAC velocity and a density (3D `smoke` scenes).
+    Smoke3d(crate::grid3d::smoke::Smoke3dState),
 }
 
 impl State {
@@ -26,7 +28,7 @@ impl State {
         match self {
             State::Velocity(u) => Some(u),
             State::Smoke(s) => Some(&s.velocity),
-            State::Scalar(_) | State::Velocity3d(_) => None,
+            State::Scalar(_) | State::Velocity3d(_) | State::Smoke3d(_) => None,
         }
     }
 

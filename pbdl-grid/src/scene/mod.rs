@@ -24,7 +24,7 @@
 //! [grid]
 //! nx = 32
 //! ny = 32                           # 1 for 1D scenes (default)
-//! # nz = 32                         # > 1: a 3D scene (navier_stokes_spectral only); lz its length
+//! # nz = 32                         # > 1: a 3D scene (navier_stokes_spectral, smoke); lz its length
 //! lx = 6.283185307179586
 //! ly = 6.283185307179586
 //! origin = [0.0, 0.0]               # coordinates of the lower-left corner (init formulas)
@@ -169,7 +169,7 @@ pub struct GridSpec {
     #[serde(default = "one_f")]
     pub ly: f64,
     /// Cells along z (default 1: a 2D scene; more makes a 3D scene, for the kinds that have a 3D
-    /// form: `navier_stokes_spectral`).
+    /// form: `navier_stokes_spectral`, `smoke`).
     #[serde(default = "one", skip_serializing_if = "is_one")]
     pub nz: usize,
     /// Length along z (default 1; used by 3D scenes).
@@ -378,8 +378,11 @@ pub enum Forcing {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Source {
-    /// Centre of the disc.
+    /// Centre of the disc (of the sphere in 3D: `[x, y]`, with `z` below).
     pub center: [f64; 2],
+    /// `z` of the sphere's centre in a 3D scene. Default: the middle of the box.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub z: Option<f64>,
     /// Radius of the disc.
     pub radius: f64,
     /// Density added per unit time inside the disc.
@@ -540,10 +543,13 @@ impl Scene {
             }
         }
         if g.nz != 1 {
-            if !matches!(self.physics, Physics::NavierStokesSpectral { .. }) {
+            if !matches!(self.physics, Physics::NavierStokesSpectral { .. } | Physics::Smoke { .. }) {
                 return bad(
                     "grid.nz",
-                    format!("only navier_stokes_spectral has a 3D form; use nz = 1 for this kind, got {}", g.nz),
+                    format!(
+                        "only navier_stokes_spectral and smoke have a 3D form; use nz = 1 for this kind, got {}",
+                        g.nz
+                    ),
                 );
             }
             if g.nz < 2 {

@@ -16,6 +16,7 @@ mod poisson;
 mod scalar_law;
 mod setup;
 mod smoke;
+mod smoke3d;
 mod velocity;
 
 pub(crate) use input::FieldInput;
@@ -79,6 +80,19 @@ pub(crate) fn build(setup: &Setup<'_>) -> SceneResult<(Box<dyn PhysicsKind>, f64
         }
         Physics::NavierStokesSpectral { nu, forcing, .. } => {
             boxed(navier_stokes_spectral::SpectralKind::build(setup, *nu, forcing.as_ref())?)
+        }
+        Physics::Smoke { nu, buoyancy, boundaries, source, advection, density_advection }
+            if setup.scene.grid.nz > 1 =>
+        {
+            boxed(smoke3d::Smoke3dKind::build(
+                setup,
+                *nu,
+                *buoyancy,
+                boundaries,
+                source,
+                *advection,
+                *density_advection,
+            )?)
         }
         Physics::Smoke { nu, buoyancy, boundaries, source, advection, density_advection } => {
             boxed(smoke::build(setup, *nu, *buoyancy, boundaries, source, *advection, *density_advection)?)
