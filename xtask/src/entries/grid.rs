@@ -159,7 +159,7 @@ fn rel_l2(a: &Tensor, b: &Tensor) -> candle_core::Result<f64> {
     Ok(((&a - &b)?.sqr()?.sum_all()?.to_scalar::<f64>()? / b.sqr()?.sum_all()?.to_scalar::<f64>()?).sqrt())
 }
 
-fn files_markdown(files: &[std::path::PathBuf], ctx: &TaskContext) -> String {
+pub(crate) fn files_markdown(files: &[std::path::PathBuf], ctx: &TaskContext) -> String {
     files
         .iter()
         .filter(|f| f.extension().is_some_and(|e| e == "png" || e == "gif"))

@@ -254,15 +254,7 @@ pub fn tour_decaying_turbulence(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     files.push(png);
     let (e1, p1) = (*energy.last().unwrap_or(&e0), *predicted.last().unwrap_or(&e0));
     let gap = (e1 - p1).abs() / (e0 - e1).abs().max(f64::MIN_POSITIVE);
-    let links = files
-        .iter()
-        .filter(|f| f.extension().is_some_and(|e| e == "png" || e == "gif"))
-        .map(|f| {
-            let rel = f.strip_prefix(&ctx.out_dir).unwrap_or(f);
-            format!("![{}]({})", rel.display(), rel.display())
-        })
-        .collect::<Vec<_>>()
-        .join("\n");
+    let links = super::grid::files_markdown(&files, ctx);
     let markdown = format!(
         "Pseudo-spectral decaying turbulence, {n}^2 f64, nu = 1e-3, {steps} steps to t = {:.1} in {seconds:.2} s \
          (operators: {}). Energy {e0:.5} -> {e1:.5}; the budget E(0) - 2 nu int Z dt gives {p1:.5} \
