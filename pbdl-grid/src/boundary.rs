@@ -66,6 +66,18 @@ pub enum InflowProfile {
         /// Centreline (maximum) speed `U_m`.
         max_velocity: f64,
     },
+    /// Poiseuille profile over the band `y_lo < y < y_hi` only (zero outside it):
+    /// `u(y) = 4 U_m (y - y_lo) (y_hi - y) / (y_hi - y_lo)^2`, `v = 0`. The inflow of a channel
+    /// whose lower part is blocked at the inlet, e.g. above a backward-facing step
+    /// (tests/backward_facing_step.rs); the band should end on cell faces.
+    ParabolicBand {
+        /// Centreline (maximum) speed `U_m`.
+        max_velocity: f64,
+        /// Lower edge of the band.
+        y_lo: f64,
+        /// Upper edge of the band.
+        y_hi: f64,
+    },
 }
 
 impl InflowProfile {
@@ -75,14 +87,22 @@ impl InflowProfile {
         match *self {
             InflowProfile::Uniform => None,
             InflowProfile::Parabolic { max_velocity } => Some(4.0 * max_velocity * y * (ly - y) / (ly * ly)),
+            InflowProfile::ParabolicBand { max_velocity, y_lo, y_hi } => Some(if y > y_lo && y < y_hi {
+                4.0 * max_velocity * (y - y_lo) * (y_hi - y) / ((y_hi - y_lo) * (y_hi - y_lo))
+            } else {
+                0.0
+            }),
         }
     }
 
-    /// The mean speed over the channel height (`2 U_m / 3` for the parabola).
+    /// The mean speed over the channel height (`2 U_m / 3` for the parabola; over the band for
+    /// [`InflowProfile::ParabolicBand`]).
     pub fn mean_velocity(&self) -> Option<f64> {
         match *self {
             InflowProfile::Uniform => None,
-            InflowProfile::Parabolic { max_velocity } => Some(2.0 * max_velocity / 3.0),
+            InflowProfile::Parabolic { max_velocity } | InflowProfile::ParabolicBand { max_velocity, .. } => {
+                Some(2.0 * max_velocity / 3.0)
+            }
         }
     }
 }

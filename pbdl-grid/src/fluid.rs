@@ -279,6 +279,17 @@ impl Fluid {
                         });
                     }
                 }
+                if let InflowProfile::ParabolicBand { max_velocity, y_lo, y_hi } = p {
+                    if !(max_velocity.is_finite() && y_lo.is_finite() && y_hi.is_finite() && y_lo < y_hi) {
+                        return Err(Error::Invalid {
+                            field: "inflow_profile",
+                            reason: format!(
+                                "parabolic band needs a finite max_velocity and y_lo < y_hi, got {max_velocity}, \
+                                 [{y_lo}, {y_hi}]"
+                            ),
+                        });
+                    }
+                }
                 operators.push("inflow.profile");
                 let (nx, ny, dy) = (grid.nx, grid.ny, grid.dy());
                 let mut b = vec![0.0; 2 * nx * ny];

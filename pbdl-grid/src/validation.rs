@@ -3,6 +3,8 @@
 //! * [`GhiaTable`]: the lid-driven cavity centreline velocities of Ghia, Ghia & Shin (1982),
 //!   J. Comput. Phys. 48(3):387-411, Tables I and II (Re 100, 400, 1000; embedded, citation in
 //!   `tests/data/ghia1982_*.csv`), and [`CavityCentrelines`] to compare a [`MacField`] with them.
+//! * [`ARMALY_1983_X1_OVER_S`]: the measured primary reattachment length behind a
+//!   backward-facing step of Armaly, Durst, Pereira & Schoenung (1983), digitised.
 //!
 //! ```
 //! use pbdl_grid::validation::{cavity_centrelines, GhiaTable};
@@ -19,6 +21,22 @@
 
 use crate::{Error, MacField, Result};
 use candle_core::DType;
+
+/// Primary reattachment length `x1 / S` against `Re` measured by Armaly, Durst, Pereira &
+/// Schoenung (1983), "Experimental and theoretical investigation of backward-facing step flow",
+/// J. Fluid Mech. 127:473-496 (laser-Doppler, air; expansion ratio `H / h = 1.9423`, step
+/// height `S = 0.9423 h`, `Re = U_mean 2 h / nu` with `U_mean` the mean inlet speed and `2 h`
+/// the inlet hydraulic diameter), as `(Re, x1 / S)` pairs.
+///
+/// The paper gives these only as points in a figure; the values are a *digitisation* of that
+/// figure, quoted from the benchmark data of the Lethe project
+/// (`chaos-polymtl/lethe`, `examples/incompressible-flow/2d-backward-facing-step/benchmark-data.txt`,
+/// section "ARMALY (1983)"), not read off the paper here. Only the points with `Re <= 400` are
+/// kept: Armaly et al. and Biswas, Breuer & Durst (2004), J. Fluids Eng. 126:362, find the flow
+/// two-dimensional there and three-dimensional above (where two-dimensional simulations
+/// underpredict `x1`). Digitisation error is a few percent at best.
+pub const ARMALY_1983_X1_OVER_S: [(f64, f64); 4] =
+    [(100.3369, 3.0353), (151.5253, 4.0000), (300.6079, 6.6118), (389.6823, 8.6118)];
 
 /// A polyline of `(coordinate, value)` points, ascending in the coordinate.
 pub type Polyline = Vec<(f64, f64)>;
