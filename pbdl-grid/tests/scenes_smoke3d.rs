@@ -71,3 +71,10 @@ fn what_has_no_3d_form_is_a_typed_error() {
     let e = Scene::from_toml_str(&obstacle, "x").unwrap().build().unwrap_err();
     assert_eq!(invalid_field(e), "obstacles");
 }
+
+#[test]
+fn three_d_grids_beyond_memory_are_refused_before_allocating() {
+    let huge = plume3d("").replace("nz = 16", "nz = 4000000");
+    let e = Scene::from_toml_str(&huge, "huge").unwrap_err();
+    assert_eq!(invalid_field(e), "grid");
+}

@@ -555,8 +555,14 @@ impl Scene {
             if g.nz < 2 {
                 return bad("grid.nz", format!("a 3D scene needs at least 2 cells, got {}", g.nz));
             }
-            if g.nx.checked_mul(g.ny).and_then(|c| c.checked_mul(g.nz)).and_then(|c| c.checked_mul(64)).is_none() {
-                return bad("grid", format!("{} x {} x {} cells do not fit in memory", g.nx, g.ny, g.nz));
+            // A 3D state holds several fields of 3 components: beyond 2^28 cells (512^3 is 2^27)
+            // one field alone passes 6 GiB in f64, so the allocation would abort the process.
+            let cells = g.nx.checked_mul(g.ny).and_then(|c| c.checked_mul(g.nz));
+            if cells.is_none_or(|c| c > 1 << 28) {
+                return bad(
+                    "grid",
+                    format!("{} x {} x {} cells do not fit in memory (at most 2^28 cells in 3D)", g.nx, g.ny, g.nz),
+                );
             }
             if !(g.lz > 0.0 && g.lz.is_finite()) {
                 return bad("grid.lz", format!("must be a positive finite length, got {}", g.lz));
