@@ -9,7 +9,7 @@
 use super::engine2d::{dealias_cutoff, derivative_wavenumber, signed, SpectralFloat};
 use super::imex::ImexScheme;
 use crate::pad::parallel_cells;
-use crate::scratch::{take, Pod};
+use crate::scratch::{take, uninit, Pod};
 use rayon::prelude::*;
 use realfft::num_complex::Complex;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
@@ -258,28 +258,33 @@ where
     pub(crate) fn explicit_terms(&self, u: &[Vec<Complex<F>>; 3]) -> ([Vec<Complex<F>>; 3], [F; 3]) {
         let cells = self.n[0] * self.n[1] * self.n[2];
         let w = self.curl(u);
-        let mut phys: Vec<Vec<F>> = (0..6).map(|_| vec![F::zero(); cells]).collect();
+        // Six physical fields (u, omega) and three products, from the per-thread scratch pool:
+        // fresh buffers every stage cost page faults at 64^3 and up.
+        let mut phys = uninit::<F>(6 * cells);
         for a in 0..3 {
-            self.inverse_into(&u[a], &mut phys[a]);
-            self.inverse_into(&w[a], &mut phys[3 + a]);
+            self.inverse_into(&u[a], &mut phys[a * cells..(a + 1) * cells]);
+            self.inverse_into(&w[a], &mut phys[(3 + a) * cells..(4 + a) * cells]);
         }
+        let field = |k: usize| &phys[k * cells..(k + 1) * cells];
+        let (pu, pv, pw, ox, oy, oz) = (field(0), field(1), field(2), field(3), field(4), field(5));
         let mut speed = [F::zero(); 3];
-        let mut cross: Vec<Vec<F>> = (0..3).map(|_| vec![F::zero(); cells]).collect();
+        let mut cross = uninit::<F>(3 * cells);
+        let (cx, rest) = cross.split_at_mut(cells);
+        let (cy, cz) = rest.split_at_mut(cells);
         for p in 0..cells {
-            let (uu, vv, ww) = (phys[0][p], phys[1][p], phys[2][p]);
-            let (ox, oy, oz) = (phys[3][p], phys[4][p], phys[5][p]);
+            let (uu, vv, ww) = (pu[p], pv[p], pw[p]);
             speed[0] = speed[0].fmax(uu.abs());
             speed[1] = speed[1].fmax(vv.abs());
             speed[2] = speed[2].fmax(ww.abs());
-            cross[0][p] = vv * oz - ww * oy;
-            cross[1][p] = ww * ox - uu * oz;
-            cross[2][p] = uu * oy - vv * ox;
+            cx[p] = vv * oz[p] - ww * oy[p];
+            cy[p] = ww * ox[p] - uu * oz[p];
+            cz[p] = uu * oy[p] - vv * ox[p];
         }
         let z0 = Complex::new(F::zero(), F::zero());
         let m = self.modes();
         let mut n = [vec![z0; m], vec![z0; m], vec![z0; m]];
         for a in 0..3 {
-            self.forward_into(&cross[a], &mut n[a]);
+            self.forward_into(&cross[a * cells..(a + 1) * cells], &mut n[a]);
             n[a].iter_mut().zip(&self.keep).for_each(|(z, &k)| *z *= k);
         }
         self.project(&mut n);

@@ -25,7 +25,7 @@ struct Tables {
 }
 
 /// `i k z` for a real multiplier `k` broadcast against `z` (`[..., 2]`).
-fn mul_i(z: &Tensor, k: &Tensor) -> candle_core::Result<Tensor> {
+pub(super) fn mul_i(z: &Tensor, k: &Tensor) -> candle_core::Result<Tensor> {
     let re = z.narrow(D::Minus1, 0, 1)?;
     let im = z.narrow(D::Minus1, 1, 1)?;
     Tensor::cat(&[&im.broadcast_mul(k)?.neg()?, &re.broadcast_mul(k)?], D::Minus1)

@@ -4,8 +4,9 @@
 
 use super::engine2d::{dealias_cutoff, derivative_wavenumber, signed};
 use super::ns3d::SpectralNavierStokes3d;
+use super::tensor2d::mul_i;
 use crate::{Error, Result};
-use candle_core::{DType, Device, Tensor, D};
+use candle_core::{DType, Device, Tensor};
 use pbdl_core::fft::{irfft3, rfft3};
 use pbdl_core::stepper::{Differentiability, Stepper};
 use std::f64::consts::PI;
@@ -17,12 +18,6 @@ struct Tables3 {
     inv_kk: Tensor,
     keep: Tensor,
     stages: Vec<(f64, Tensor, Tensor)>,
-}
-
-fn mul_i(z: &Tensor, k: &Tensor) -> candle_core::Result<Tensor> {
-    let re = z.narrow(D::Minus1, 0, 1)?;
-    let im = z.narrow(D::Minus1, 1, 1)?;
-    Tensor::cat(&[&im.broadcast_mul(k)?.neg()?, &re.broadcast_mul(k)?], D::Minus1)
 }
 
 impl SpectralNavierStokes3d {
