@@ -8,8 +8,16 @@
 //! ```
 //!
 //! Item `k` depends on the settings and `k` only, so 4 shards write the same files as one run
-//! (`xtask/tests/data_shards.rs` shows it); each shard commits `manifest-<i>-of-<n>.json` with
-//! SHA-256 hashes last (see [`pbdl_core::shard`]).
+//! (`xtask/tests/data_shards.rs` and `data_shards_grid_weather.rs` show it); each shard commits
+//! `manifest-<i>-of-<n>.json` with SHA-256 hashes last (see [`pbdl_core::shard`]).
+//!
+//! The other sharded generators live with their commands, and `data check` checks them all:
+//!
+//! | command | item `k` | generator in the manifest | read by |
+//! |---|---|---|---|
+//! | `sim grid SCENE --seeds N --shard i/n` | the scene with its random inputs' seeds + `k` (`Scene::with_seed_offset`) | `pbdl-grid/sim` | any `.npz` reader (same arrays as `sim grid`) |
+//! | `sim particles SCENE --seeds N --shard i/n` | the noise scene with seed + `k` | `pbdl-particles/sim` | any `.npz` reader |
+//! | `weather generate --shard i/n` | 0: the truth run, 1: the biased climate run | `pbdl-weather/standin` | `weather train` / `eval --data DIR` |
 
 use anyhow::Context as _;
 use pbdl_core::shard::{generate_shard, open_shards, Shard};

@@ -9,14 +9,15 @@
 //!   `stress fuzz [--target NAME] [--seconds S] [--seed N]`: mutation fuzzing of the file
 //!   readers (`xtask::fuzz`); `--write-corpus` regenerates the seed corpus `fuzz/corpus/`.
 //! * `sim grid|particles <scene | file.toml>`: runs a scene, writes its trajectory (`.npz`) and
-//!   renders.
+//!   renders; `--seeds N [--shard i/n]` one run per seed, as data shards for a job array.
 //! * `metric <lsim|volsim|mse|ssim|...> A B`: a distance between two `.npy`/`.npz`/`.png`
 //!   fields as one JSON object (see `pbdl_metrics::files`).
 //! * `weights convert IN.pth OUT.safetensors`: the official LSiM / VolSiM checkpoints (legacy
 //!   PyTorch pickles) to the safetensors files `pbdl_metrics` loads.
 //! * `weather score --forecast F --truth T`: WeatherBench's official scores (RMSE, MAE, ACC,
 //!   per lead time) of NetCDF or `.npy` files as one JSON object.
-//! * `data metric|acdm ... --shard i/n --out DIR`: training data in shards for a job array;
+//! * `data metric|acdm ... --shard i/n --out DIR` (also `sim grid|particles --seeds N --shard i/n`,
+//!   `weather generate --shard i/n`): training data in shards for a job array;
 //!   `data check DIR`: every item once, hashes as recorded (see `pbdl_core::shard`).
 //! * `ci`: format check, clippy with `-D warnings`, the test suite.
 
@@ -125,11 +126,13 @@ enum Command {
         /// particles: the number of output frames (the frame interval is kept).
         #[arg(long)]
         steps: Option<usize>,
-        /// Particles: runs with seeds 0..N (noise scenes differ per seed), one .npz each.
+        /// Runs 0..N, one .npz each: particles with seeds seed+k (noise scenes differ per seed);
+        /// grid scenes with their random inputs' seeds + k (`init = random_modes`: burgers_2d,
+        /// decaying_turbulence, kolmogorov; other scenes are refused).
         #[arg(long)]
         seeds: Option<usize>,
-        /// Particles with --seeds: only this job's seeds, `i/n` (0-based), written as data shards
-        /// (`item-<seed>.npz` + `manifest-i-of-n.json`; check with `cargo xtask data check`).
+        /// With --seeds: only this job's runs, `i/n` (0-based), written as data shards
+        /// (`item-<k>.npz` + `manifest-i-of-n.json`; check with `cargo xtask data check`).
         #[arg(long)]
         shard: Option<pbdl_core::shard::Shard>,
         /// Particles: f32 or f64 (replaces the scene's `precision`, default f64).
@@ -207,7 +210,8 @@ enum WeatherCommand {
         level: Option<f64>,
     },
     /// Run the stand-in climate (shallow water on the sphere): an unbiased "truth" and a biased
-    /// "climate model"; writes NetCDF-4 files in WeatherBench's layout.
+    /// "climate model"; writes NetCDF-4 files in WeatherBench's layout (with --shard i/n: data
+    /// shards, one .npz per run).
     Generate {
         /// Output directory (default: target/pbdl/weather/data).
         #[arg(long)]
@@ -221,13 +225,20 @@ enum WeatherCommand {
         /// Seed of the truth run (the climate run uses seed + 1000).
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Only this job's runs, `i/n` (0-based), as data shards: item 0 is the truth run, item 1
+        /// the climate run, each one `item-<k>.npz` (z, t, times, grid; the truth also the
+        /// constants) plus `manifest-i-of-n.json`; `weather train`/`eval --data DIR` read the
+        /// checked directory (`cargo xtask data check DIR`). Without it: the NetCDF files.
+        #[arg(long)]
+        shard: Option<pbdl_core::shard::Shard>,
     },
     /// Train the CPU-sized Rasp & Thuerey ResNet (continuous lead 6 h..5 d) on generated data.
     Train(weather::TrainArgs),
     /// Score baselines and trained runs on the truth's test year: RMSE and ACC per lead,
     /// report.md, scores.json and RMSE-vs-lead plots.
     Eval {
-        /// Data directory of `weather generate` (default: target/pbdl/weather/data).
+        /// Data directory of `weather generate`, plain or its shards (default:
+        /// target/pbdl/weather/data).
         #[arg(long)]
         data: Option<PathBuf>,
         /// Run directories of `weather train` to score.
@@ -304,6 +315,14 @@ Poisson scene reads `source`). smoke_plume reads `density` ([Y, X], [1, Y, X] or
 [T, 1, Y, X], resampled like the velocity), the velocity, or both; what is missing is kept.
 A trajectory written by `sim` is a valid --init file.
 
+--seeds N (grid): N runs of a scene with a random input (`init = random_modes`: burgers_2d,
+decaying_turbulence, kolmogorov, or a .toml), run k with the scene's seed + k (run 0 is the
+scene itself), written as <out>/<scene>_seed<k>.npz + renders. Scenes without a random input
+refuse --seeds (their runs would all be equal), and so does --init. --shard i/n (grid and
+particles) makes job i of n write only its runs, as item-<k>.npz + renders and
+manifest-i-of-n.json; run k is the same whatever n is, so the n jobs equal one run, file for
+file (`cargo xtask data check DIR` checks the directory).
+
 Particles (`sim particles`): <out>/<scene>_seed<k>.npz with `positions` [T, N, D],
 `velocities` [T, N, D], `density` [T, N], `mass` [T, N] and, where there are walls or ghosts,
 `fixed_positions` [F, D], in the run's precision (f64, or f32 with `precision = \"f32\"` in the
@@ -318,6 +337,7 @@ Examples:
   cargo xtask sim grid taylor_green --res 128
   cargo xtask sim grid lid_driven_cavity --res 64 --out /tmp/cavity
   cargo xtask sim grid my_scene.toml --init start.npz --steps 500
+  cargo xtask sim grid burgers_2d --seeds 64 --shard 3/8 --out data/burgers   # job 3 of 8
   cargo xtask sim particles periodic_2d_box --seeds 4 --out /tmp/box
   cargo xtask sim particles dam_break_iisph --steps 50
   cargo xtask sim particles shock_tube --precision f32";
@@ -348,9 +368,9 @@ fn main() -> anyhow::Result<()> {
         Command::Weather(WeatherCommand::Score { forecast, truth, var, metric, lat, level }) => {
             weather::score(weather::ScoreArgs { forecast, truth, var, metric, lat, level })
         }
-        Command::Weather(WeatherCommand::Generate { out, truth_years, climate_years, seed }) => {
+        Command::Weather(WeatherCommand::Generate { out, truth_years, climate_years, seed, shard }) => {
             let out = out.unwrap_or_else(|| report::target_dir().join("weather/data"));
-            weather::generate(weather::GenerateArgs { out, truth_years, climate_years, seed })
+            weather::generate(weather::GenerateArgs { out, truth_years, climate_years, seed, shard })
         }
         Command::Weather(WeatherCommand::Train(args)) => weather::train_cmd(args),
         Command::Weather(WeatherCommand::Eval { data, runs, out }) => {

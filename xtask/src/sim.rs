@@ -1,5 +1,5 @@
 //! `cargo xtask sim grid|particles <scene | file.toml>`: run a scene, write its trajectory and
-//! renders.
+//! renders; `--seeds N [--shard i/n]`: one run per seed, as data shards for a job array.
 
 use crate::report;
 use pbdl_grid::scene::{write_trajectory, Scene};
@@ -21,23 +21,25 @@ pub struct SimArgs {
     pub init: Option<PathBuf>,
     /// Output directory.
     pub out: Option<PathBuf>,
-    /// Number of seeds (runs `0..seeds`, particles only).
+    /// Number of seeds (runs `0..seeds`; grid scenes: run `k` is `Scene::with_seed_offset(k)`).
     pub seeds: Option<usize>,
-    /// This job's seeds only, as data shards (particles with `seeds` only).
+    /// This job's seeds only, as data shards (with `seeds` only).
     pub shard: Option<pbdl_core::shard::Shard>,
     /// `f32` or `f64`, replacing the scene's `precision` (particles only).
     pub precision: Option<String>,
 }
 
-/// Runs the scene and writes `<out>/<scene>.npz` plus PNG/GIF renders.
+/// Runs the scene and writes `<out>/<scene>.npz` plus PNG/GIF renders; with `--seeds N` one run
+/// per seed (see [`run_grid_seeds`]).
 pub fn run(args: SimArgs) -> anyhow::Result<()> {
     if args.krate == "particles" {
         return run_particles(args);
     }
     anyhow::ensure!(args.krate == "grid", "unknown simulator `{}`; available: grid, particles", args.krate);
-    anyhow::ensure!(args.seeds.is_none(), "--seeds is for `sim particles`");
-    anyhow::ensure!(args.shard.is_none(), "--shard is for `sim particles --seeds N`");
-    anyhow::ensure!(args.precision.is_none(), "--precision is for `sim particles`; grid scenes run in f64");
+    anyhow::ensure!(
+        args.precision.is_none(),
+        "--precision is for `sim particles`; grid scenes set `precision` in the TOML"
+    );
     let mut scene = Scene::load(&args.scene)?;
     if let Some(n) = args.res {
         scene = scene.with_resolution(n);
@@ -45,8 +47,76 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     if let Some(s) = args.steps {
         scene = scene.with_steps(s);
     }
+    let out = args.out.clone().unwrap_or_else(|| report::target_dir().join("sim").join(&scene.name));
+    if let Some(seeds) = args.seeds {
+        return run_grid_seeds(scene, seeds, args.shard, args.init.as_deref(), &out);
+    }
+    anyhow::ensure!(args.shard.is_none(), "--shard splits the seeds of --seeds N among jobs; give --seeds");
+    run_grid_once(&scene, args.init.as_deref(), &out)
+}
+
+/// `sim grid SCENE --seeds N [--shard i/n]`: run `k` is the scene with its seeded inputs
+/// advanced by `k` ([`Scene::with_seed_offset`]), so it depends on the scene and `k` only.
+/// Without `--shard` it writes `<out>/<scene>_seed<k>.npz` (+ renders) for `k` in `0..N`; with
+/// `--shard i/n` only this job's runs, as `item-<k>.npz` (+ renders) and the manifest
+/// `manifest-i-of-n.json` (see [`pbdl_core::shard`]). A scene without a seeded input is refused:
+/// its runs would all be the same.
+fn run_grid_seeds(
+    scene: Scene,
+    seeds: usize,
+    shard: Option<pbdl_core::shard::Shard>,
+    init: Option<&Path>,
+    out: &Path,
+) -> anyhow::Result<()> {
+    anyhow::ensure!(seeds >= 1, "--seeds must be at least 1");
+    if !scene.is_seeded() {
+        let random: Vec<&str> = pbdl_grid::scene::builtin_names()
+            .into_iter()
+            .filter(|n| Scene::builtin(n).is_ok_and(|s| s.is_seeded()))
+            .collect();
+        anyhow::bail!(
+            "scene `{}` has no random input (only `init = random_modes` is seeded), so its --seeds runs would \
+             all be the same; drop --seeds, or use a scene that starts from random modes ({}, or a .toml \
+             with [init] kind = \"random_modes\")",
+            scene.name,
+            random.join(", ")
+        );
+    }
+    anyhow::ensure!(
+        init.is_none(),
+        "--init with --seeds: the runs would start from the same file instead of their seeds' random modes"
+    );
+    let run_seed = |k: usize, stem: &str, dir: &Path| {
+        let mut run = scene.clone().with_seed_offset(k as u64);
+        let inputs: Vec<String> = run.seeded_inputs().iter().map(|(key, v)| format!("{key} = {v}")).collect();
+        println!("sim: {} run {k} of {seeds} ({})", scene.name, inputs.join(", "));
+        // The name only names the output files.
+        run.name = stem.to_string();
+        run_grid_once(&run, None, dir)
+    };
+    let Some(shard) = shard else {
+        for k in 0..seeds {
+            run_seed(k, &format!("{}_seed{k}", scene.name), out)?;
+        }
+        return Ok(());
+    };
+    // The manifests record the whole scene (seed, resolution, steps included), so shards of
+    // different scenes or settings cannot be mixed in one directory.
+    let config = serde_json::json!({ "scene": serde_json::to_value(&scene)?, "seeds": seeds });
+    let m = pbdl_core::shard::generate_shard(out, "pbdl-grid/sim", &config, seeds, shard, |k, path| {
+        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("item").to_string();
+        let dir = path.parent().unwrap_or(out);
+        run_seed(k, &stem, dir).map_err(|e| pbdl_core::Error::invalid("sim grid", "--shard", e.to_string()))
+    })?;
+    println!("sim: shard {} wrote seeds {:?} ({})", m.shard, shard.items(seeds), m.shard.manifest_name());
+    Ok(())
+}
+
+/// One grid run of `scene` (from the fields of `init` if given): `<out>/<scene.name>.npz` and
+/// renders.
+fn run_grid_once(scene: &Scene, init: Option<&Path>, out: &Path) -> anyhow::Result<()> {
     let mut sim = scene.build()?;
-    if let Some(path) = &args.init {
+    if let Some(path) = init {
         let arrays = pbdl_core::io::read_npz(path)?;
         let used = sim.set_fields(&arrays)?;
         println!("sim: initial {} from {}", used.join(", "), path.display());
@@ -68,8 +138,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     let traj = sim.run(|k| progress.set_position(k as u64))?;
     progress.finish();
     let wall = started.elapsed().as_secs_f64();
-    let out = args.out.unwrap_or_else(|| report::target_dir().join("sim").join(&sim.scene().name));
-    let files = write_trajectory(&sim, &traj, &out)?;
+    let files = write_trajectory(&sim, &traj, out)?;
     println!(
         "sim: {} steps in {:.2} s ({:.3} ms/step), {} frames",
         sim.step_index(),

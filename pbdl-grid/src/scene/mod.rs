@@ -15,6 +15,10 @@
 //! # Ok::<(), pbdl_grid::scene::SceneError>(())
 //! ```
 //!
+//! Seeded runs (one data item per run, `cargo xtask sim grid SCENE --seeds N`): run `k` is
+//! [`Scene::with_seed_offset`]`(k)`, every seeded input ([`Scene::seeded_inputs`]; the `seed` of
+//! `init = random_modes`) advanced by `k`.
+//!
 //! A scene file (all sections; `time` needs `steps` or `t_end`):
 //!
 //! ```toml
@@ -43,6 +47,7 @@ mod build;
 mod init;
 mod kinds;
 mod output;
+mod seeds;
 
 pub use build::{Simulation, State, Trajectory};
 pub use init::Init;
