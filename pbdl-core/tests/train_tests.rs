@@ -511,3 +511,109 @@ fn infinite_gradient_with_finite_loss_is_caught() {
     assert!(matches!(e, Error::Diverged { step: 4, ref quantity, .. } if quantity == "gradient norm"), "{e}");
     assert_eq!(v1(x.as_tensor()), [0.0, 1.0]);
 }
+
+/// A `run_custom_with_state` trainer: its own Adam over the `VarMap`'s variables and its own
+/// state (an EMA of the weights that the loss pulls towards), a fresh random batch per update
+/// drawn from (seed, step), a learning-rate drop at step 10, checkpoints every 5 updates in
+/// `dir`. `restore`: put the checkpoint's optimiser state and EMA back before training (`false`:
+/// the broken resume that restarts them). `fail_at`: the update after which the hook stops the
+/// run with an error.
+fn custom_run(dir: &std::path::Path, steps: u64, restore: bool, fail_at: Option<u64>) -> pbdl_core::Result<LoopReport> {
+    use pbdl_core::io::CheckpointMeta;
+    let dev = Device::Cpu;
+    let varmap = candle_nn::VarMap::new();
+    let w = varmap.get((4, 1), "w", candle_nn::Init::Const(0.0), DType::F64, &dev)?;
+    let b = varmap.get(1, "b", candle_nn::Init::Const(0.0), DType::F64, &dev)?;
+    let cfg = LoopConfig { steps, checkpoint_every: 5, dir: Some(dir.into()), progress: false, ..Default::default() };
+    let run = TrainLoop::resume(&varmap, cfg)?;
+    let adam = OptimizerConfig::Adam(AdamConfig { lr: 0.05, ..Default::default() });
+    let mut opt = adam.build(sorted_vars(&varmap).into_iter().map(|(_, v)| v).collect())?;
+    let mut ema = w.zeros_like()?;
+    if let (Some(ck), true) = (run.resumed(), restore) {
+        assert!(ck.restore_optimizer(&mut opt, &varmap)?, "the checkpoint holds the Adam state");
+        ema = ck.extra_tensor("ema")?.clone();
+    }
+    let (opt, ema) = (std::cell::RefCell::new(opt), std::cell::RefCell::new(ema));
+    let a_true = Tensor::new(&[[1.0f64], [-2.0], [0.5], [3.0]], &dev)?;
+    run.after_step(|step, _: &StepInfo| {
+        if Some(step) == fail_at {
+            Err(Error::invalid("custom_run", "step", "stopped by the test"))
+        } else {
+            Ok(())
+        }
+    })
+    .run_custom_with_state::<Error>(
+        |step| if step < 10 { 0.05 } else { 0.02 },
+        CheckpointMeta::at,
+        |_| {
+            let mut state = state::optimizer_state_tensors(&opt.borrow(), &varmap)?;
+            state.push(("ema".into(), ema.borrow().clone()));
+            Ok(state)
+        },
+        |step, lr| {
+            let x = seed::randn((16, 4), 0.0, 1.0, DType::F64, &dev, 7 ^ step.wrapping_mul(0x9E37_79B9_7F4A_7C15))?;
+            let y = x.matmul(&a_true)?;
+            let fit = (x.matmul(&w)?.broadcast_add(&b)? - y)?.sqr()?.mean_all()?;
+            let pull = ((&w - &*ema.borrow())?.sqr()?.sum_all()? * 0.5)?;
+            let loss = (&fit + &pull)?;
+            let mut opt = opt.borrow_mut();
+            opt.set_learning_rate(lr);
+            opt.backward_step(&loss)?;
+            let next = ((&*ema.borrow() * 0.9)? + (&w * 0.1)?)?;
+            // Detached: the EMA is a constant of the next loss, not a path to earlier weights.
+            *ema.borrow_mut() = next.detach();
+            Ok(Update::loss(loss.to_scalar::<f64>()?).with("pull", pull.to_scalar::<f64>()?))
+        },
+    )
+}
+
+/// `run_custom_with_state` resumes exactly: a run stopped after 12 updates (its last
+/// checkpoint at 12), resumed in a fresh call that fails after update 17 (rows 15..=17 logged
+/// past the step-15 checkpoint) and resumed again, ends with the `loss.csv` (loss and the
+/// extra column, bit for bit) and the checkpoints (weights, Adam moments and count, EMA) of
+/// the uninterrupted run. Restarting the method's state instead is caught.
+#[test]
+fn run_custom_with_state_resumes_exactly_after_a_stop_and_an_error() {
+    use pbdl_core::train::crash::Fingerprint;
+    let root = tempfile::tempdir().unwrap();
+    let (full_dir, cut_dir, cold_dir) = (root.path().join("full"), root.path().join("cut"), root.path().join("cold"));
+    let full = custom_run(&full_dir, 20, true, None).unwrap();
+    assert_eq!(full.losses.len(), 20);
+
+    assert_eq!(custom_run(&cut_dir, 12, true, None).unwrap().losses.len(), 12);
+    let e = custom_run(&cut_dir, 20, true, Some(17)).unwrap_err();
+    assert!(matches!(e, Error::InvalidArgument { .. }), "{e}");
+    let last = custom_run(&cut_dir, 20, true, None).unwrap();
+    assert_eq!(last.resumed_from, 15);
+    assert!(!last.optimizer_restored, "run_custom restores nothing itself");
+    assert_eq!(last.losses, full.losses[15..], "the resumed losses are the uninterrupted run's, bit for bit");
+
+    let expected = Fingerprint::of_run_dir(&full_dir).unwrap();
+    for key in
+        ["step-20/ema", "step-20/w", "step-20/__optim__/adamw/m/w", "step-20/__optim__/adamw/steps", "loss.csv/pull"]
+    {
+        assert!(expected.entries.contains_key(key), "{key} is compared");
+    }
+    let without_12 = |dir: &std::path::Path| {
+        let mut f = Fingerprint::of_run_dir(dir).unwrap();
+        assert!(f.entries.remove("step-12/step").is_some(), "the stopped call checkpointed its last update");
+        f.entries.retain(|k, _| !k.starts_with("step-12/"));
+        f
+    };
+    assert_eq!(without_12(&cut_dir).diff(&expected), None);
+
+    // The same interruption, resumed without the method's state (Adam moments and EMA restart).
+    custom_run(&cold_dir, 12, true, None).unwrap();
+    let cold = custom_run(&cold_dir, 20, false, None).unwrap();
+    assert_eq!(cold.losses.len(), 8);
+    assert!(cold.losses.iter().zip(&full.losses[12..]).all(|(c, f)| c != f), "the EMA pull restarted at 0");
+    assert!(without_12(&cold_dir).diff(&expected).is_some());
+
+    // State names must not shadow a variable.
+    let varmap = candle_nn::VarMap::new();
+    varmap.get(1, "w", candle_nn::Init::Const(0.0), DType::F64, &Device::Cpu).unwrap();
+    let clash = vec![("w".to_string(), Tensor::new(&[1.0f64], &Device::Cpu).unwrap())];
+    let meta = pbdl_core::io::CheckpointMeta::at(1);
+    let e = state::save_state_checkpoint(root.path().join("clash"), &varmap, clash, &meta).unwrap_err();
+    assert!(e.to_string().contains("also a variable"), "{e}");
+}

@@ -27,14 +27,15 @@
 //! # Ok::<(), pbdl_optim::Error>(())
 //! ```
 
-use crate::error::Result;
+use crate::error::{check_len, Result};
 use candle_core::backprop::GradStore;
-use candle_core::{Tensor, Var};
+use candle_core::{Device, Tensor, Var};
 use candle_nn::Optimizer;
 use pbdl_core::io::CheckpointMeta;
 use pbdl_core::train::{AdamConfig, ClipConfig, LoopConfig, OptimizerConfig, TrainLoop, Update};
 use serde::{Deserialize, Serialize};
 use std::cell::RefCell;
+use std::path::PathBuf;
 
 /// Which gradient paths of a rollout are kept; see the module docs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -300,7 +301,7 @@ pub fn train(
     check_batch(schedule.batch, n_train)?;
     let adam = OptimizerConfig::Adam(AdamConfig { lr: schedule.lr, ..Default::default() });
     let mut opt = adam.build(vars.to_vec())?;
-    let mut step = |first: usize| -> Result<Option<f64>> {
+    let mut step = |first: usize| -> Result<(f64, Option<f64>)> {
         let s0 = train.narrow(0, first, schedule.batch)?;
         let g = gradients(
             schedule.mode,
@@ -313,62 +314,160 @@ pub fn train(
             &schedule.clip,
         )?;
         opt.step(&g.grads)?;
-        Ok(g.agreement)
+        Ok((g.loss, g.agreement))
     };
-    run_schedule(schedule, n_train, &mut (), |_, first| step(first), |_, _| evaluate())
+    let run = TrainLoop::in_memory(Vec::new(), schedule_loop(schedule, None))?;
+    run_schedule(schedule, n_train, &mut (), run, |_| Ok(Vec::new()), |_, first| step(first), |_, _| evaluate())
+}
+
+/// Where a stabilized-BPTT run keeps its checkpoints, for an exact resume after it was stopped
+/// or killed (`cartpole::adjoint::train_checkpointed`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RunDir {
+    /// The run directory: atomic checkpoints `step-<n>` (see the trainer for what they hold)
+    /// and `loss.csv` (per update: the training loss of the batch, mode C's sign `agreement`,
+    /// and the test loss `eval` on the rows after an evaluation). One trainer per directory.
+    pub dir: PathBuf,
+    /// Write a checkpoint every this many updates, and after the last (0: only after the last).
+    pub checkpoint_every: u64,
+}
+
+/// The [`TrainLoop`] settings of a stabilized-BPTT run: `iterations` updates, no progress bar,
+/// a non-finite test loss recorded as a measurement (mode F may blow up) while training goes
+/// on; checkpoints into `run_dir` where given.
+pub(crate) fn schedule_loop(schedule: &TrainSchedule, run_dir: Option<&RunDir>) -> LoopConfig {
+    LoopConfig {
+        steps: schedule.iterations as u64,
+        checkpoint_every: run_dir.map_or(0, |r| r.checkpoint_every),
+        dir: run_dir.map(|r| r.dir.clone()),
+        progress: false,
+        stop_on_non_finite_eval: false,
+        ..Default::default()
+    }
+}
+
+/// Checkpoint names of what [`run_schedule`] itself carries across a resume: the evaluations so
+/// far (steps as `i64`, test losses) and mode C's agreement sum and count (`f64` pair).
+const EVAL_STEPS: &str = "bptt/eval_steps";
+const EVAL_LOSS: &str = "bptt/eval_loss";
+const AGREEMENT: &str = "bptt/agreement";
+
+/// The measurements a run accumulates: the evaluations and the sign agreement of mode C.
+#[derive(Default)]
+struct History {
+    steps: Vec<usize>,
+    test_loss: Vec<f64>,
+    agree_sum: f64,
+    agree_n: usize,
+}
+
+impl History {
+    fn from_checkpoint(ck: &pbdl_core::train::TrainCheckpoint) -> Result<Self> {
+        let steps: Vec<usize> =
+            ck.extra_tensor(EVAL_STEPS)?.to_vec1::<i64>()?.into_iter().map(|s| s as usize).collect();
+        let test_loss: Vec<f64> = ck.extra_tensor(EVAL_LOSS)?.to_vec1::<f64>()?;
+        check_len("stored evaluations (test losses vs steps)", steps.len(), test_loss.len())?;
+        let agreement = ck.extra_tensor(AGREEMENT)?.to_vec1::<f64>()?;
+        let (agree_sum, agree_n) = match agreement[..] {
+            [sum, n] => (sum, n as usize),
+            _ => return Err(crate::Error::shape(AGREEMENT, "[sum, count]", format!("{agreement:?}"))),
+        };
+        Ok(Self { steps, test_loss, agree_sum, agree_n })
+    }
+
+    fn tensors(&self) -> Result<Vec<(String, Tensor)>> {
+        let steps: Vec<i64> = self.steps.iter().map(|&s| s as i64).collect();
+        let n = steps.len();
+        Ok(vec![
+            (EVAL_STEPS.into(), Tensor::from_vec(steps, n, &Device::Cpu)?),
+            (EVAL_LOSS.into(), Tensor::from_slice(&self.test_loss, n, &Device::Cpu)?),
+            (AGREEMENT.into(), Tensor::new(&[self.agree_sum, self.agree_n as f64], &Device::Cpu)?),
+        ])
+    }
 }
 
 /// The loop of a stabilized-BPTT run, written once for the candle path ([`train`]) and the
 /// cart-pole hand-written adjoint path ([`crate::cartpole::adjoint`]) on
-/// [`pbdl_core::train::TrainLoop`] (in memory, no progress bar): checks the batch size against
-/// the `n_train` training episodes, then calls `step(model, first)` (gradient and optimiser
-/// update on the batch of episodes `first..first + batch`, cycled in order; returns mode C's
-/// sign agreement) `iterations` times, timed by the loop, and records
+/// [`pbdl_core::train::TrainLoop`] (`run`, opened with [`schedule_loop`]'s settings: in memory,
+/// or resumed from a run directory): checks the batch size against the `n_train` training
+/// episodes, then calls `step(model, first)` (gradient and optimiser update on the batch of
+/// episodes `first..first + batch`, cycled in order; returns the batch loss and mode C's sign
+/// agreement) for the updates `run.start()..iterations`, timed by the loop, and records
 /// `evaluate(model, steps_done)` at step 0, every `eval_every` steps and after the last (not
 /// timed).
+///
+/// With a run directory each checkpoint holds, besides the `VarMap`'s variables, the
+/// evaluations and agreement sums so far and the tensors of `state(model)` (the caller's
+/// optimiser and whatever else its updates depend on); a resumed run picks up the first two
+/// itself, the caller restores the rest from `run.resumed()` before calling this. The batches
+/// follow from the step, so nothing else is needed for the resumed run to record what the
+/// uninterrupted one does. The evaluation at the resume point is not repeated (it is in the
+/// checkpoint if the schedule had one there), and [`BpttRun::seconds`] counts the training
+/// time of this call only.
 pub(crate) fn run_schedule<S>(
     schedule: &TrainSchedule,
     n_train: usize,
     model: &mut S,
-    mut step: impl FnMut(&mut S, usize) -> Result<Option<f64>>,
+    run: TrainLoop<'_>,
+    mut state: impl FnMut(&S) -> Result<Vec<(String, Tensor)>>,
+    mut step: impl FnMut(&mut S, usize) -> Result<(f64, Option<f64>)>,
     mut evaluate: impl FnMut(&S, usize) -> Result<f64>,
 ) -> Result<BpttRun> {
     check_batch(schedule.batch, n_train)?;
     let n_batches = n_train / schedule.batch;
-    // The update and the evaluation both reach the model, one at a time.
+    let start = run.start();
+    let history = RefCell::new(match run.resumed() {
+        Some(ck) => History::from_checkpoint(ck)?,
+        None => History::default(),
+    });
+    // The update, the evaluation and the checkpoint writer all reach the model, one at a time.
     let model = RefCell::new(model);
-    let (mut steps, mut test_loss) = (Vec::new(), Vec::new());
-    let (mut agree_sum, mut agree_n) = (0.0, 0usize);
     // A non-finite test loss is a measurement here (mode F may blow up), recorded while
-    // training goes on; a non-finite training loss stops the run in `step` (`Diverged`).
-    let cfg = LoopConfig {
-        steps: schedule.iterations as u64,
-        progress: false,
-        stop_on_non_finite_eval: false,
-        ..Default::default()
-    };
-    let report = TrainLoop::in_memory(Vec::new(), cfg)?
+    // training goes on (`schedule_loop`); a non-finite training loss stops the run in `step`
+    // (`Diverged`).
+    let report = run
         .evaluate_every(schedule.eval_every.max(1) as u64, |done| -> Result<f64> {
+            if start > 0 && done == start {
+                // The resume point: its evaluation, if the schedule has one there, was recorded
+                // before the checkpoint; otherwise there is none (the value is not used).
+                let h = history.borrow();
+                return Ok(if h.steps.last() == Some(&(done as usize)) {
+                    h.test_loss[h.steps.len() - 1]
+                } else {
+                    f64::NAN
+                });
+            }
             let value = evaluate(&**model.borrow(), done as usize)?;
-            steps.push(done as usize);
-            test_loss.push(value);
+            let mut h = history.borrow_mut();
+            h.steps.push(done as usize);
+            h.test_loss.push(value);
             Ok(value)
         })
-        .run_custom::<crate::Error>(
+        .run_custom_with_state::<crate::Error>(
             |_| schedule.lr,
             CheckpointMeta::at,
+            |_| {
+                let mut tensors = history.borrow().tensors()?;
+                tensors.extend(state(&**model.borrow())?);
+                Ok(tensors)
+            },
             |it, _| {
-                let agreement = step(&mut **model.borrow_mut(), (it as usize % n_batches) * schedule.batch)?;
-                if let Some(a) = agreement {
-                    agree_sum += a;
-                    agree_n += 1;
-                }
-                // `step` reports no training loss (its gradients already refuse a non-finite one).
-                Ok(Update::loss(0.0))
+                let (loss, agreement) = step(&mut **model.borrow_mut(), (it as usize % n_batches) * schedule.batch)?;
+                let update = Update::loss(loss);
+                Ok(match agreement {
+                    Some(a) => {
+                        let mut h = history.borrow_mut();
+                        h.agree_sum += a;
+                        h.agree_n += 1;
+                        update.with("agreement", a)
+                    }
+                    None => update,
+                })
             },
         )?;
-    let agreement = (agree_n > 0).then(|| agree_sum / agree_n as f64);
-    Ok(BpttRun { steps, test_loss, seconds: report.seconds, agreement })
+    let h = history.into_inner();
+    let agreement = (h.agree_n > 0).then(|| h.agree_sum / h.agree_n as f64);
+    Ok(BpttRun { steps: h.steps, test_loss: h.test_loss, seconds: report.seconds, agreement })
 }
 
 /// A batch size between 1 and the number `n_train` of training episodes.

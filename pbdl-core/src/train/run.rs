@@ -58,14 +58,16 @@
 //! # Ok::<(), pbdl_core::Error>(())
 //! ```
 
-use super::state::{load_train_checkpoint, remove_interrupted_writes, save_train_checkpoint, sorted_vars};
-use super::{train_step, ClipConfig, NanGuard, Optim, OptimizerConfig, Progress, ScalarLog, StepInfo, TrainCheckpoint};
-use crate::io::{latest_checkpoint, save_varmap, CheckpointMeta};
+use super::state::{
+    load_train_checkpoint, remove_interrupted_writes, save_state_checkpoint, save_train_checkpoint, sorted_vars,
+};
+use super::{train_step, ClipConfig, NanGuard, OptimizerConfig, Progress, ScalarLog, StepInfo, TrainCheckpoint};
+use crate::io::{latest_checkpoint, CheckpointMeta};
 use crate::Result;
 use candle_core::{Tensor, Var};
 use candle_nn::{Optimizer, VarMap};
 use std::cell::RefCell;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Settings of a [`TrainLoop`].
@@ -135,10 +137,11 @@ pub struct LoopReport {
     /// Why the run stopped.
     pub stopped: StopReason,
     /// Whether the run resumed with the optimiser state of its checkpoint ([`TrainLoop::run`]
-    /// from a checkpoint that holds one). `false` for a fresh run, for
-    /// [`TrainLoop::run_custom`], and for a checkpoint without optimiser state (written by
-    /// `save_varmap` or by pbdl before exact resume): its moments restart, so the resumed run
-    /// is close to an uninterrupted one but not equal to it.
+    /// from a checkpoint that holds one). `false` for a fresh run, for a checkpoint without
+    /// optimiser state (written by `save_varmap` or by pbdl before exact resume: its moments
+    /// restart, so the resumed run is close to an uninterrupted one but not equal to it), and
+    /// always for [`TrainLoop::run_custom`] and [`TrainLoop::run_custom_with_state`], whose
+    /// method restores its own state from [`TrainLoop::resumed`].
     pub optimizer_restored: bool,
 }
 
@@ -388,7 +391,11 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
         let clip = self.cfg.clip;
         // Shared by the update and the checkpoint writer, which never run at the same time.
         let opt = RefCell::new(opt);
-        let mut report = self.drive(meta, Some(&opt), |step, guard| {
+        let save = |_: u64, path: &Path, varmap: &VarMap, meta: &CheckpointMeta| -> std::result::Result<(), E> {
+            save_train_checkpoint(path, varmap, &opt.borrow(), Vec::new(), meta)?;
+            Ok(())
+        };
+        let mut report = self.drive(meta, save, |step, guard| {
             let mut opt = opt.borrow_mut();
             opt.set_learning_rate(lr_at(step));
             let l = loss_at(step)?;
@@ -402,12 +409,16 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
     /// computes the loss and its gradient and applies the update itself (hand-written adjoints,
     /// second-order updates, a generator and a discriminator step). Everything else is as in
     /// [`TrainLoop::run`]: resume, time budget, evaluation, `loss.csv` (with the update's
-    /// extra columns), hook, progress and checkpoints (of the `VarMap`, where there is one; a
-    /// method's own optimiser state is not in them, so a resumed `run_custom` restarts it).
+    /// extra columns), hook, progress and checkpoints (of the `VarMap`, where there is one).
     /// The configured clipping is not applied (the method clips its own gradient). A
     /// non-finite loss or gradient norm stops the run with [`crate::Error::Diverged`] before
     /// that step is logged or checkpointed; an update should not apply a non-finite step (its
     /// parameters are not rolled back).
+    ///
+    /// The checkpoints hold the `VarMap`'s variables only: a method with state of its own
+    /// (optimiser moments, parameters outside the `VarMap`) restarts that state on resume, so
+    /// the resumed run is not the uninterrupted one. For an exact resume use
+    /// [`TrainLoop::run_custom_with_state`], which commits that state with the weights.
     ///
     /// ```
     /// use pbdl_core::train::{LoopConfig, TrainLoop, Update};
@@ -435,13 +446,98 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
         self,
         lr_at: impl Fn(u64) -> f64,
         meta: impl Fn(u64) -> CheckpointMeta,
+        update: impl FnMut(u64, f64) -> std::result::Result<Update, E>,
+    ) -> std::result::Result<LoopReport, E>
+    where
+        H: AfterStep<E>,
+        V: Evaluate<E>,
+    {
+        self.run_custom_with_state(lr_at, meta, |_| Ok(Vec::new()), update)
+    }
+
+    /// [`TrainLoop::run_custom`] whose checkpoints also hold the method's own state, in the same
+    /// atomic commit as the weights: at each checkpoint after `n` updates, `state(n)` returns
+    /// named tensors that are saved with the `VarMap`'s variables
+    /// ([`super::state::save_state_checkpoint`]). On resume they come back in
+    /// [`TrainLoop::resumed`]'s [`TrainCheckpoint::extra`] (and, for an optimiser's state,
+    /// through [`TrainCheckpoint::restore_optimizer`]); the method puts them back **before**
+    /// calling this.
+    ///
+    /// For the resumed run to equal the uninterrupted one bit for bit, the checkpoint must hold
+    /// everything the remaining updates and the run's result depend on, and the method must
+    /// restore all of it:
+    ///
+    /// * parameters kept outside the `VarMap` (a flat `Vec<f64>`, a hand-built network);
+    /// * the optimiser's state: for a pbdl [`super::Optim`] over variables of the `VarMap`,
+    ///   [`super::state::optimizer_state_tensors`] (moments and update count, restored by
+    ///   [`TrainCheckpoint::restore_optimizer`]); for an optimiser of the method's own, its
+    ///   moments, momentum buffers and update count as tensors;
+    /// * anything accumulated across updates: running averages (EMA weights), best-so-far
+    ///   values, schedule or plateau counters, sums a result is computed from;
+    /// * the random stream: derive step `k`'s draws from `(seed, k)`, or replay the draws of
+    ///   steps `0..start` before training (a generator state is not saved); data generated from
+    ///   the seed before training needs nothing.
+    ///
+    /// Names must not collide with the `VarMap`'s variables; names under
+    /// [`super::OPTIM_PREFIX`] are for [`super::state::optimizer_state_tensors`] only. `state`
+    /// is called only where a checkpoint is written (a run directory and a `VarMap`); an error
+    /// from it stops the run with that error, the previous checkpoints kept.
+    ///
+    /// ```
+    /// use candle_core::{DType, Device, Tensor};
+    /// use candle_nn::{Init, VarMap};
+    /// use pbdl_core::io::CheckpointMeta;
+    /// use pbdl_core::train::{LoopConfig, TrainLoop, Update};
+    ///
+    /// // Heavy-ball descent on (w - 3)^2 by hand: the velocity is the method's own state.
+    /// let dir = tempfile::tempdir().unwrap();
+    /// let fit = |steps: u64| -> pbdl_core::Result<f64> {
+    ///     let varmap = VarMap::new();
+    ///     let w = varmap.get(1, "w", Init::Const(0.0), DType::F64, &Device::Cpu)?;
+    ///     let w = candle_core::Var::from_tensor(&w)?;
+    ///     let cfg = LoopConfig { steps, checkpoint_every: 10, dir: Some(dir.path().into()), progress: false, ..Default::default() };
+    ///     let run = TrainLoop::resume(&varmap, cfg)?;
+    ///     // Restore the velocity before training (0 in a fresh run).
+    ///     let vel = std::cell::Cell::new(match run.resumed() {
+    ///         Some(ck) => ck.extra_tensor("velocity")?.to_vec1::<f64>()?[0],
+    ///         None => 0.0,
+    ///     });
+    ///     run.run_custom_with_state::<pbdl_core::Error>(
+    ///         |_| 0.05,
+    ///         CheckpointMeta::at,
+    ///         |_| Ok(vec![("velocity".to_string(), Tensor::new(&[vel.get()], &Device::Cpu)?)]),
+    ///         |_, lr| {
+    ///             let x = w.as_tensor().to_vec1::<f64>()?[0];
+    ///             vel.set(0.9 * vel.get() - lr * 2.0 * (x - 3.0));
+    ///             w.set(&Tensor::new(&[x + vel.get()], &Device::Cpu)?)?;
+    ///             Ok(Update::loss((x - 3.0) * (x - 3.0)))
+    ///         },
+    ///     )?;
+    ///     Ok(w.as_tensor().to_vec1::<f64>()?[0])
+    /// };
+    /// fit(25)?; // stopped after 25 updates ...
+    /// let resumed = fit(60)?; // ... and resumed in a fresh call
+    /// std::fs::remove_dir_all(dir.path()).unwrap();
+    /// assert_eq!(resumed.to_bits(), fit(60)?.to_bits()); // the same as one uninterrupted run
+    /// # Ok::<(), pbdl_core::Error>(())
+    /// ```
+    pub fn run_custom_with_state<E: From<crate::Error>>(
+        self,
+        lr_at: impl Fn(u64) -> f64,
+        meta: impl Fn(u64) -> CheckpointMeta,
+        mut state: impl FnMut(u64) -> std::result::Result<Vec<(String, Tensor)>, E>,
         mut update: impl FnMut(u64, f64) -> std::result::Result<Update, E>,
     ) -> std::result::Result<LoopReport, E>
     where
         H: AfterStep<E>,
         V: Evaluate<E>,
     {
-        self.drive(meta, None, |step, guard| {
+        let save = |done: u64, path: &Path, varmap: &VarMap, meta: &CheckpointMeta| -> std::result::Result<(), E> {
+            let tensors = state(done)?;
+            save_state_checkpoint(path, varmap, tensors, meta)?;
+            Ok(())
+        };
+        self.drive(meta, save, |step, guard| {
             let lr = lr_at(step);
             let u = update(step, lr)?;
             guard.check(step, u.loss, u.grad_norm)?;
@@ -450,11 +546,12 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
     }
 
     /// The frame around one update `step_once(step, guard) -> (info, extra columns)`: resume point,
-    /// evaluation, time budget, log row, hook, progress, checkpoint (see [`TrainLoop::run`]).
+    /// evaluation, time budget, log row, hook, progress, checkpoint (see [`TrainLoop::run`]);
+    /// `save(updates_done, path, varmap, meta)` writes one checkpoint (one atomic commit).
     fn drive<E: From<crate::Error>>(
         mut self,
         meta: impl Fn(u64) -> CheckpointMeta,
-        opt: Option<&RefCell<Optim>>,
+        mut save: impl FnMut(u64, &Path, &VarMap, &CheckpointMeta) -> std::result::Result<(), E>,
         mut step_once: impl FnMut(u64, &mut NanGuard) -> std::result::Result<(StepInfo, Vec<(&'static str, f64)>), E>,
     ) -> std::result::Result<LoopReport, E>
     where
@@ -516,11 +613,7 @@ impl<'a, H, V> TrainLoop<'a, H, V> {
             if let (Some(dir), Some(varmap)) = (&self.cfg.dir, self.varmap) {
                 let every = self.cfg.checkpoint_every;
                 if last || (every > 0 && done % every == 0) {
-                    let path = dir.join(format!("step-{done}"));
-                    match opt {
-                        Some(opt) => save_train_checkpoint(path, varmap, &opt.borrow(), Vec::new(), &meta(done))?,
-                        None => save_varmap(path, varmap, &meta(done))?,
-                    };
+                    save(done, &dir.join(format!("step-{done}")), varmap, &meta(done))?;
                 }
             }
             if out_of_time && done < self.cfg.steps {

@@ -134,6 +134,41 @@ pub fn save_train_checkpoint(
     save_checkpoint(path, tensors, meta)
 }
 
+/// The state of `opt` (built over variables of `varmap`) as the named tensors that
+/// [`save_train_checkpoint`] stores (under [`OPTIM_PREFIX`]): moments, momentum buffers and the
+/// update count. For a method that runs its own [`Optim`] inside
+/// [`super::TrainLoop::run_custom_with_state`]: return these from its state closure, and on
+/// resume put them back with [`TrainCheckpoint::restore_optimizer`].
+pub fn optimizer_state_tensors(opt: &Optim, varmap: &VarMap) -> Result<Vec<(String, Tensor)>> {
+    optimizer_tensors(opt, varmap)
+}
+
+/// Saves the checkpoint `path` ([`save_checkpoint`]): every variable of `varmap` and the named
+/// `state` tensors (a method's own state: parameters outside the `VarMap`, optimiser moments,
+/// running averages, counters), all in one file under one commit. Names must not collide with
+/// the variables (nor with each other); names under [`OPTIM_PREFIX`] should come from
+/// [`optimizer_state_tensors`] (they load as optimiser state, the others as
+/// [`TrainCheckpoint::extra`]). This is the checkpoint of
+/// [`super::TrainLoop::run_custom_with_state`].
+pub fn save_state_checkpoint(
+    path: impl AsRef<Path>,
+    varmap: &VarMap,
+    state: Vec<(String, Tensor)>,
+    meta: &CheckpointMeta,
+) -> Result<CheckpointInfo> {
+    let mut tensors: Vec<(String, Tensor)> =
+        sorted_vars(varmap).into_iter().map(|(n, v)| (n, v.as_tensor().clone())).collect();
+    if let Some((name, _)) = state.iter().find(|(n, _)| tensors.iter().any(|(v, _)| v == n)) {
+        return Err(Error::invalid(
+            "save_state_checkpoint",
+            "state",
+            format!("`{name}` is also a variable of the VarMap; give the state tensor another name"),
+        ));
+    }
+    tensors.extend(state);
+    save_checkpoint(path, tensors, meta)
+}
+
 /// A checkpoint loaded by [`load_train_checkpoint`]: its sidecar, the optimiser state (apply
 /// it with [`TrainCheckpoint::restore_optimizer`]) and the other tensors.
 #[derive(Clone, Debug)]
@@ -152,6 +187,23 @@ impl TrainCheckpoint {
     /// and those of pbdl before exact resume, do not).
     pub fn has_optimizer_state(&self) -> bool {
         !self.optim.is_empty()
+    }
+
+    /// The extra tensor `name` (see [`TrainCheckpoint::extra`]); a [`Error::Format`] naming the
+    /// checkpoint and the stored extras when it is absent (a checkpoint of another method or
+    /// version).
+    pub fn extra_tensor(&self, name: &str) -> Result<&Tensor> {
+        self.extra.get(name).ok_or_else(|| {
+            let mut stored: Vec<&String> = self.extra.keys().collect();
+            stored.sort();
+            Error::Format {
+                path: PathBuf::from(&self.info.weights_file),
+                reason: format!(
+                    "the checkpoint of step {} has no `{name}` (extra tensors: {stored:?}); was it written by another method or version? resume with the same trainer, or start a new run directory",
+                    self.info.step
+                ),
+            }
+        })
     }
 
     /// Restores the stored state into `opt`, built over the variables of `varmap` with the
