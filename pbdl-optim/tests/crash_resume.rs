@@ -134,7 +134,8 @@ fn a_resumed_run_returns_the_uninterrupted_result_and_refuses_another_config() {
     for key in [
         "step-96/controller.params",
         "step-96/bptt/eval_loss",
-        "step-96/__optim__/adamw/v/controller.params",
+        "step-96/cartpole/adam/v",
+        "step-96/cartpole/adam/steps",
         "loss.csv/agreement",
         "loss.csv/eval",
     ] {

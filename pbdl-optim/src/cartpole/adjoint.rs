@@ -46,11 +46,10 @@ use super::{CartPole, CartPoleConfig, CartPoleRun, Controller};
 use crate::bptt::{run_schedule, schedule_loop, GradientMode, RunDir};
 use crate::error::{check_len, Error, Result};
 use candle_core::{DType, Device, Tensor, Var};
-use candle_nn::{Init, Optimizer, VarMap};
+use candle_nn::{Init, VarMap};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
-use pbdl_core::train::state::optimizer_state_tensors;
-use pbdl_core::train::{clip_in_place, AdamConfig, ClipConfig, FlatAdam, OptimizerConfig, TrainLoop};
+use pbdl_core::train::{clip_in_place, AdamConfig, ClipConfig, FlatAdam, TrainLoop};
 use std::cell::RefCell;
 
 /// Offsets of the six parameter blocks in a flat vector, in the order of
@@ -683,6 +682,11 @@ pub const PARAMS_NAME: &str = "controller.params";
 /// `Debug` text as bytes): a resume with another configuration is refused.
 const CONFIG_NAME: &str = "cartpole/config";
 
+/// Checkpoint entries of the flat Adam's first and second moments and its update count (`f64`).
+const ADAM_M_NAME: &str = "cartpole/adam/m";
+const ADAM_V_NAME: &str = "cartpole/adam/v";
+const ADAM_STEPS_NAME: &str = "cartpole/adam/steps";
+
 /// [`train_with`], optionally checkpointed into `run_dir` for an exact resume: a run that was
 /// stopped or killed (`kill -9` included, at any moment) and is started again with the same
 /// `cfg` and directory continues from its newest checkpoint and returns, and leaves in the
@@ -698,12 +702,9 @@ const CONFIG_NAME: &str = "cartpole/config";
 /// random is drawn while training: the episodes and the initial weights follow from
 /// `cfg.seed`, the batches from the step.
 ///
-/// With a run directory the update runs through pbdl-core's Adam on one `f64` variable
-/// (whose state a checkpoint can hold) instead of [`FlatAdam`]: the same update operation
-/// for operation, so the numbers are those of a run without a directory (tested bit for bit).
-/// Its tensor operations cost time: at the paper's size (1 pole, width 100, batch 8) about
-/// 0.6-1.1 ms more per update (3.0-3.9 ms against 2.4-3.2 ms, release build, a busy 2-core
-/// machine), plus the checkpoint writes.
+/// The update is the same [`FlatAdam`] step with or without a directory; with one, the flat
+/// parameters are copied into the checkpoint's variable, and Adam's moments and count into
+/// tensors of the same commit, only when a checkpoint is written.
 pub fn train_checkpointed(
     cfg: &CartPoleConfig,
     run_dir: Option<&RunDir>,
@@ -743,6 +744,9 @@ pub fn train_checkpointed(
     };
 
     let n = net.params.len();
+    // The checkpoint holds the parameters as one f64 variable; training updates the flat
+    // vector (FlatAdam, as without a directory) and copies it into the variable only when a
+    // checkpoint is written.
     let varmap = VarMap::new();
     let theta = Var::from_tensor(&varmap.get(n, PARAMS_NAME, Init::Const(0.0), DType::F64, &Device::Cpu)?)?;
     theta.set(&Tensor::from_slice(&net.params, n, &Device::Cpu)?)?;
@@ -750,7 +754,7 @@ pub fn train_checkpointed(
     let config_tensor = Tensor::from_slice(config.as_bytes(), config.len(), &Device::Cpu)?;
     // Loads the newest checkpoint's parameters into `theta`.
     let run = TrainLoop::resume(&varmap, schedule_loop(&schedule, Some(run_dir)))?;
-    let mut opt = OptimizerConfig::Adam(adam).build(vec![theta.clone()])?;
+    let mut opt = FlatAdam::new(adam, n);
     if let Some(ck) = run.resumed() {
         let stored = String::from_utf8_lossy(&ck.extra_tensor(CONFIG_NAME)?.to_vec1::<u8>()?).into_owned();
         if stored != config {
@@ -764,29 +768,30 @@ pub fn train_checkpointed(
             )
             .into());
         }
-        if !ck.restore_optimizer(&mut opt, &varmap)? {
-            return Err(pbdl_core::Error::invalid(
-                "cartpole::adjoint::train_checkpointed",
-                "run_dir",
-                format!("the checkpoint of step {} holds no Adam state", ck.info.step),
-            )
-            .into());
-        }
+        let read = |name: &str| -> Result<Vec<f64>> { Ok(ck.extra_tensor(name)?.to_vec1::<f64>()?) };
+        // The count is stored as an f64 (exact below 2^53).
+        let steps = read(ADAM_STEPS_NAME)?.first().copied().unwrap_or(0.0) as u64;
+        opt.restore(&read(ADAM_M_NAME)?, &read(ADAM_V_NAME)?, steps)?;
         net.params.copy_from_slice(&theta.as_tensor().to_vec1::<f64>()?);
     }
     let opt = RefCell::new(opt);
     let step = |net: &mut AdjointController, first: usize| -> Result<(f64, Option<f64>)> {
         let info = bptt.gradients(net, batch(first), cfg.mode, &cfg.clip)?;
-        // The gradient of theta . g with respect to theta is g, exactly.
-        let g = Tensor::from_slice(&bptt.grad, n, &Device::Cpu)?;
-        opt.borrow_mut().backward_step(&(theta.as_tensor() * g)?.sum_all()?)?;
-        net.params.copy_from_slice(&theta.as_tensor().to_vec1::<f64>()?);
+        opt.borrow_mut().step(&mut net.params, &bptt.grad)?;
         Ok((info.loss, info.agreement))
     };
-    let state = |_: &AdjointController| -> Result<Vec<(String, Tensor)>> {
-        let mut tensors = optimizer_state_tensors(&opt.borrow(), &varmap)?;
-        tensors.push((CONFIG_NAME.into(), config_tensor.clone()));
-        Ok(tensors)
+    // Called right before each checkpoint is written: the variable takes the current
+    // parameters, Adam's state rides along as extra tensors of the same commit.
+    let state = |net: &AdjointController| -> Result<Vec<(String, Tensor)>> {
+        theta.set(&Tensor::from_slice(&net.params, n, &Device::Cpu)?)?;
+        let opt = opt.borrow();
+        let (m, v) = opt.moments();
+        Ok(vec![
+            (ADAM_M_NAME.into(), Tensor::from_slice(m, n, &Device::Cpu)?),
+            (ADAM_V_NAME.into(), Tensor::from_slice(v, n, &Device::Cpu)?),
+            (ADAM_STEPS_NAME.into(), Tensor::from_slice(&[opt.steps() as f64], 1, &Device::Cpu)?),
+            (CONFIG_NAME.into(), config_tensor.clone()),
+        ])
     };
     run_schedule(&schedule, cfg.train, &mut net, run, state, step, test_loss)
 }
