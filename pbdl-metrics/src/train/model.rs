@@ -143,6 +143,19 @@ impl MetricNet {
         self.stats.as_deref()
     }
 
+    /// Replaces the statistics (a resumed training run restores those of its checkpoint).
+    pub(crate) fn set_stats(&mut self, stats: Vec<LayerStats>) -> Result<()> {
+        if stats.len() != BASE.len() {
+            return Err(Error::invalid(
+                "MetricNet::set_stats",
+                "stats",
+                format!("expected {} layers, got {}", BASE.len(), stats.len()),
+            ));
+        }
+        self.stats = Some(stats);
+        Ok(())
+    }
+
     /// Sets the channel weights to `max(w, 0)` (the published model clamps before every forward
     /// pass; here after every optimiser step, which gives the same forward passes).
     pub fn clamp_weights(&self) -> Result<()> {

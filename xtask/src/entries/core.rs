@@ -603,6 +603,22 @@ const CRASH_RESUME: &[crate::acceptance::AcceptanceTest] = &[
         minutes: 1.0,
         env: &[],
     },
+    crate::acceptance::AcceptanceTest {
+        package: "pbdl-metrics",
+        file: "crash_resume",
+        test: "lsim_kill_9_twenty_times_then_resume_exactly",
+        claim: "LSiM metric training: 20 kill -9 then resume = the uninterrupted run (weights, Adam state, normalisation statistics), bit for bit",
+        minutes: 1.0,
+        env: &[],
+    },
+    crate::acceptance::AcceptanceTest {
+        package: "pbdl-optim",
+        file: "crash_resume",
+        test: "cartpole_kill_9_twenty_times_then_resume_exactly",
+        claim: "cart-pole controller training (adjoint path): 20 kill -9 then resume = the uninterrupted run (parameters, Adam state, evaluations), bit for bit",
+        minutes: 1.0,
+        env: &[],
+    },
 ];
 
 fn stress_crash_resume(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
