@@ -42,7 +42,7 @@ pub fn tasks() -> CrateTasks {
             Entry { name: "conv_fuzz", about: "Random conv configurations against a direct sum.", run: stress_conv_fuzz },
             Entry {
                 name: "crash_resume",
-                about: "kill -9 during training and inside checkpoint writes, 20 times, then resume: TrainLoop, ACDM and the weather forecaster reproduce the uninterrupted run bit for bit (release, about 3 min).",
+                about: "kill -9 during training and inside checkpoint writes, 20 times, then resume: TrainLoop, ACDM, the weather forecaster, LSiM training and cart-pole controller training reproduce the uninterrupted run bit for bit (release, about 4 min).",
                 run: stress_crash_resume,
             },
             Entry {
