@@ -1,0 +1,19 @@
+//! # pbdl-sol
+//!
+//! Learning through the differentiable grid solver (pbdl-grid's steppers and their adjoints):
+//! - **Solver-in-the-Loop** (Um et al., NeurIPS 2020): a correction network applied after each
+//!   coarse solver step, trained on precomputed data (PRE), through one solver step (NON) or
+//!   through `m` unrolled steps (SOL-m);
+//! - **PDE control** (Holl et al., ICLR 2020): observation predictors and a control force
+//!   estimator trained end to end through the solver, against direct per-scene optimisation.
+//!
+//! No solver code lives here: every physics step is a pbdl-grid stepper.
+//!
+//! | module | what it gives you |
+//! |---|---|
+//! | [`error`] | [`Error`], [`Result`] |
+#![warn(missing_docs)]
+
+pub mod error;
+
+pub use error::{Error, Result};
