@@ -65,8 +65,9 @@ fn what_has_no_3d_form_is_a_typed_error() {
     let text = format!("{}\n{walls}", plume3d(""));
     let e = Scene::from_toml_str(&text, "x").unwrap().build().unwrap_err();
     assert_eq!(invalid_field(e), "physics.boundaries");
-    let e = Scene::from_toml_str(&plume3d("density_advection = \"conservative\"\n"), "x").unwrap().build().unwrap_err();
-    assert_eq!(invalid_field(e), "physics.density_advection");
+    // Conservative density transport has a 3D form now (grid3d::conservative); it builds.
+    let sim = Scene::from_toml_str(&plume3d("density_advection = \"conservative\"\n"), "x").unwrap().build().unwrap();
+    assert!(sim.operators().iter().any(|o| o.contains("conservative")), "{:?}", sim.operators());
     let obstacle = format!("{}\n[[obstacles]]\nkind = \"circle\"\ncenter = [0.5, 0.8]\nradius = 0.1\n", plume3d(""));
     let e = Scene::from_toml_str(&obstacle, "x").unwrap().build().unwrap_err();
     assert_eq!(invalid_field(e), "obstacles");

@@ -196,18 +196,18 @@ impl<T: Real> Back<T> {
 }
 
 #[inline(always)]
-fn pos<T: Real>(x: T) -> T {
+pub(crate) fn pos<T: Real>(x: T) -> T {
     x.fmax(T::zero())
 }
 
 #[inline(always)]
-fn neg<T: Real>(x: T) -> T {
+pub(crate) fn neg<T: Real>(x: T) -> T {
     x.fmin(T::zero())
 }
 
 /// `min(a, b)`, ties to `a` (the adjoint follows the same rule).
 #[inline(always)]
-fn min_first<T: Real>(a: T, b: T) -> T {
+pub(crate) fn min_first<T: Real>(a: T, b: T) -> T {
     if a <= b {
         a
     } else {

@@ -53,6 +53,10 @@ pub enum Advection3d {
     /// MacCormack with the Selle et al. (2008) limiter (default).
     #[default]
     MacCormack,
+    /// Finite-volume flux form with flux-corrected transport ([`super::conservative`]): mass
+    /// conserved to round-off, no new extrema. Cell-centred scalars (the density) only; forward
+    /// only (no adjoint yet).
+    Conservative,
 }
 
 impl Advection3d {
@@ -64,6 +68,8 @@ impl Advection3d {
             (Self::MacCormack, false) => "grid3d.advect.mac_cormack(density)",
             (Self::SemiLagrangian, true) => "grid3d.advect.semi_lagrangian(velocity)",
             (Self::MacCormack, true) => "grid3d.advect.mac_cormack(velocity)",
+            (Self::Conservative, false) => "grid3d.advect.conservative(density)",
+            (Self::Conservative, true) => "grid3d.advect.conservative(velocity)",
         }
     }
 }
@@ -81,11 +87,13 @@ pub fn mac_cormack_scalar(q: &Tensor, velocity: &MacField3d, dt: f64) -> Result<
     Ok(op.mac_cormack(q, velocity.values())?)
 }
 
-/// One step of a cell-centred scalar with `scheme`. Differentiable.
+/// One step of a cell-centred scalar with `scheme` (in the closed box). Differentiable, except
+/// [`Advection3d::Conservative`] (forward only).
 pub fn advect_scalar(q: &Tensor, velocity: &MacField3d, dt: f64, scheme: Advection3d) -> Result<Tensor> {
     match scheme {
         Advection3d::SemiLagrangian => semi_lagrangian_scalar(q, velocity, dt),
         Advection3d::MacCormack => mac_cormack_scalar(q, velocity, dt),
+        Advection3d::Conservative => super::conservative::conservative_scalar(q, velocity, dt),
     }
 }
 
@@ -103,11 +111,18 @@ pub fn mac_cormack_velocity(u: &MacField3d, velocity: &MacField3d, dt: f64) -> R
     Ok(MacField3d::from_parts(op.mac_cormack(u.values(), velocity.values())?, *u.grid()))
 }
 
-/// One step of the velocity `u` moved by `velocity` with `scheme`. Differentiable.
+/// One step of the velocity `u` moved by `velocity` with `scheme` (not
+/// [`Advection3d::Conservative`]: a typed error). Differentiable.
 pub fn advect_velocity(u: &MacField3d, velocity: &MacField3d, dt: f64, scheme: Advection3d) -> Result<MacField3d> {
     match scheme {
         Advection3d::SemiLagrangian => semi_lagrangian_velocity(u, velocity, dt),
         Advection3d::MacCormack => mac_cormack_velocity(u, velocity, dt),
+        Advection3d::Conservative => Err(Error::Invalid {
+            field: "advection",
+            reason: "conservative transport is for cell-centred scalars; move the velocity with semi_lagrangian \
+                     or mac_cormack"
+                .into(),
+        }),
     }
 }
 

@@ -16,6 +16,7 @@
 //! | [`box_pressure`] | [`BoxPressure`] (the solver choice), [`BoxSolver`], [`box_pressure::make_incompressible_box`] (self-adjoint) |
 //! | [`cavity`] | [`Cavity3d`]: the lid-driven cavity stepper (walled right-hand side, projection per stage) |
 //! | [`advect`] | semi-Lagrangian and MacCormack (Selle limiter) advection of cell-centred scalars and of the no-slip box velocity ([`Advection3d`]); hand-written adjoints |
+//! | [`conservative`] | [`Conservative3d`]: finite-volume flux form with Zalesak's FCT for cell-centred scalars (walls or periodic per axis): mass conserved to round-off, no new extrema, second order where smooth; forward only |
 //! | [`smoke`] | [`Smoke3d`]: the buoyant smoke plume (density advection, sphere inflow, velocity self-advection, Boussinesq buoyancy, optional viscosity, box projection), listing its operators |
 //!
 //! Conventions: tensors `[batch, channel, nz, ny, nx]`, x fastest, `f32` or `f64`, CPU. The
@@ -23,9 +24,9 @@
 //! ([`Cavity3d`]) keeps the last face of each component along its own axis as a wall face.
 //! Time schemes are the 2D ones ([`crate::ButcherTableau`]).
 //!
-//! Not here yet: other wall layouts (inflow/outflow, free slip), obstacles, conservative scalar
-//! transport, a fused stage update for the cavity, and a warm start of CG across time steps
-//! inside the steppers.
+//! Not here yet: other wall layouts (inflow/outflow, free slip), obstacles, the adjoint of the
+//! conservative scalar transport, a fused stage update for the cavity, and a warm start of CG
+//! across time steps inside the steppers.
 //!
 //! ```
 //! use pbdl_grid::grid3d::{abc::abc_flow, fd, Grid3d, NavierStokes3d, NavierStokes3dConfig};
@@ -43,6 +44,7 @@ pub mod box_pressure;
 pub mod cavity;
 pub mod cg;
 pub mod cholesky;
+pub mod conservative;
 pub mod domain;
 pub mod fd;
 mod fft;
@@ -60,6 +62,7 @@ pub use box_pressure::{BoxPressure, BoxSolver};
 pub use cavity::Cavity3d;
 pub use cg::CgBox3d;
 pub use cholesky::CholeskyBox3d;
+pub use conservative::{AxisFaces3d, Conservative3d};
 pub use domain::Grid3d;
 pub use field::MacField3d;
 pub use navier_stokes::{NavierStokes3d, NavierStokes3dConfig};

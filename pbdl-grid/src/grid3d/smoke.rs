@@ -2,8 +2,10 @@
 //! density, buoyancy and an inflow, on the walls of [`super::walls`] (no-slip, at rest).
 //!
 //! One [`Smoke3d::step`] (PhiFlow's smoke-plume order):
-//! 1. density: advect by the old velocity ([`super::advect`], MacCormack by default), add the
-//!    inflow `dt * rate` in the cells whose centres lie in a sphere ([`SphereSource`]);
+//! 1. density: advect by the old velocity ([`super::advect`], MacCormack by default; or
+//!    [`Advection3d::Conservative`], the flux form of [`super::conservative`]: the density's mass
+//!    is then exactly what the source injected, to round-off), add the inflow `dt * rate` in the
+//!    cells whose centres lie in a sphere ([`SphereSource`]);
 //! 2. velocity: advect by itself (MacCormack by default, no-slip walls), add the Boussinesq force
 //!    `dt * beta * rho` along `+y` ([`buoyancy`]: the new density averaged to the y-faces);
 //! 3. viscosity when `nu > 0`: explicit (`u + dt nu L u`, forward Euler, its limit checked at
@@ -15,12 +17,15 @@
 //! A [`Smoke3d`] is built once and holds only what its configuration needs;
 //! [`Smoke3d::operators`] lists them. Every part has a hand-written adjoint (advection,
 //! buoyancy, both viscosities, the projection), so a step is differentiable in the initial
-//! velocity and density and in the inflow rate (pass it as a tensor to [`Smoke3d::step`]).
+//! velocity and density and in the inflow rate (pass it as a tensor to [`Smoke3d::step`]);
+//! except the conservative density transport, which has no adjoint yet (a backward pass through
+//! it is an error; the stepper then reports itself partially differentiable).
 //! Semi-Lagrangian and MacCormack advection are unconditionally stable, so the only time-step
 //! limit is the explicit viscosity's; [`Smoke3d::cfl`] reports the CFL number for accuracy.
 
 use super::advect::{Advection3d, Sl3d};
 use super::box_pressure::{BoxPressure, BoxSolver, WallProjection};
+use super::conservative::conservative_scalar;
 use super::field::{check_values, MacField3d};
 use super::stability::check_time_step;
 use super::walls::{CavityWalls, WallMomentumRhs};
@@ -137,7 +142,8 @@ pub struct Smoke3dConfig {
     /// Velocity self-advection. Default MacCormack.
     #[serde(default)]
     pub advection: Advection3d,
-    /// Density advection. Default MacCormack.
+    /// Density advection. Default MacCormack. [`Advection3d::Conservative`] conserves the mass
+    /// (forward only); the velocity refuses it.
     #[serde(default)]
     pub density_advection: Advection3d,
     /// Boussinesq coefficient `beta`: the force `beta rho` along `+y` (0: no buoyancy operator).
@@ -227,6 +233,14 @@ impl Smoke3d {
             return Err(Error::Invalid {
                 field: "buoyancy",
                 reason: format!("must be finite, got {}", config.buoyancy),
+            });
+        }
+        if config.advection == Advection3d::Conservative {
+            return Err(Error::Invalid {
+                field: "advection",
+                reason: "conservative transport is for the density (`density_advection`); the velocity takes \
+                         semi_lagrangian or mac_cormack"
+                    .into(),
             });
         }
         let mut operators = vec![config.density_advection.operator_name(false)];
@@ -353,10 +367,10 @@ impl Smoke3d {
         let (dt, g) = (self.config.dt, self.grid);
         let u = &state.velocity;
         // 1. Density.
-        let sl = Sl3d::scalar(&state.density, u, dt)?;
         let mut rho = match self.config.density_advection {
-            Advection3d::SemiLagrangian => sl.apply(&state.density, u.values())?,
-            Advection3d::MacCormack => sl.mac_cormack(&state.density, u.values())?,
+            Advection3d::SemiLagrangian => Sl3d::scalar(&state.density, u, dt)?.apply(&state.density, u.values())?,
+            Advection3d::MacCormack => Sl3d::scalar(&state.density, u, dt)?.mac_cormack(&state.density, u.values())?,
+            Advection3d::Conservative => conservative_scalar(&state.density, u, dt)?,
         };
         if let (Some(mask), Some(src)) = (&self.source_mask, &self.config.source) {
             let m = mask.to_dtype(rho.dtype())?;
@@ -371,6 +385,13 @@ impl Smoke3d {
         let mut v = match self.config.advection {
             Advection3d::SemiLagrangian => sl.apply(u.values(), u.values())?,
             Advection3d::MacCormack => sl.mac_cormack(u.values(), u.values())?,
+            Advection3d::Conservative => {
+                // Refused in `Smoke3d::new`; kept as a typed error rather than a panic.
+                return Err(Error::Invalid {
+                    field: "advection",
+                    reason: "conservative transport is for the density only".into(),
+                });
+            }
         };
         if self.config.buoyancy != 0.0 {
             let f = apply1(&rho, Buoyancy3d { grid: g, beta: self.config.buoyancy * dt })?;
@@ -402,9 +423,14 @@ impl pbdl_core::stepper::Stepper for Smoke3d {
         self.operators.clone()
     }
 
-    /// Full: every operator has a hand-written adjoint (see the module docs).
+    /// Full: every operator has a hand-written adjoint (see the module docs); partial with the
+    /// conservative density transport, whose backward is an error.
     fn differentiability(&self) -> pbdl_core::stepper::Differentiability {
-        pbdl_core::stepper::Differentiability::Full
+        if self.config.density_advection == Advection3d::Conservative {
+            pbdl_core::stepper::Differentiability::Partial(&["grid3d.advect.conservative(density)"])
+        } else {
+            pbdl_core::stepper::Differentiability::Full
+        }
     }
 
     fn step(&self, state: &Smoke3dState) -> Result<Smoke3dState> {

@@ -300,7 +300,9 @@ pub enum Physics {
         /// semi-Lagrangian when the velocity uses it. `conservative` is the flux-form scheme with
         /// flux-corrected transport ([`crate::advect::conservative()`]): the density's mass is
         /// exactly what the source injected (to round-off; MacCormack's is 11% above it after the
-        /// shipped plume's 400 steps), no new extrema, sub-cycled to its CFL limit.
+        /// shipped plume's 400 steps), no new extrema, sub-cycled to its CFL limit; in 3D
+        /// (`grid.nz > 1`) the same method on three axes ([`crate::grid3d::conservative`],
+        /// forward only).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         density_advection: Option<Advection>,
     },

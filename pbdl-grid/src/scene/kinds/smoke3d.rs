@@ -1,6 +1,7 @@
 //! The 3D buoyant smoke plume (`smoke` with `grid.nz > 1`) via [`Smoke3d`]: a closed box of
 //! no-slip walls (the only 3D wall layout so far), a density sphere, Boussinesq buoyancy along
-//! `+y`.
+//! `+y`. `density_advection = "conservative"` moves the density with the 3D flux-corrected
+//! transport ([`crate::grid3d::conservative`]): its mass is what the source injected.
 
 use super::{c, FieldInput, PhysicsKind, Setup};
 use crate::fluid::Advection;
@@ -16,12 +17,19 @@ pub(super) struct Smoke3dKind {
     state: Smoke3dState,
 }
 
-fn advection3d(setup: &Setup<'_>, field: &str, a: Advection) -> SceneResult<Advection3d> {
+/// The 3D scheme of `a`; `conservative` only for the density.
+fn advection3d(setup: &Setup<'_>, field: &str, a: Advection, density: bool) -> SceneResult<Advection3d> {
     match a {
         Advection::SemiLagrangian => Ok(Advection3d::SemiLagrangian),
         Advection::MacCormack => Ok(Advection3d::MacCormack),
-        other => Err(setup
-            .invalid(field, format!("{other:?} has no 3D form yet; 3D smoke takes semi_lagrangian or mac_cormack"))),
+        Advection::Conservative if density => Ok(Advection3d::Conservative),
+        other => Err(setup.invalid(
+            field,
+            format!(
+                "{other:?} has no 3D form yet; 3D smoke takes semi_lagrangian or mac_cormack{}",
+                if density { " (or conservative for the density)" } else { "" }
+            ),
+        )),
     }
 }
 
@@ -49,10 +57,10 @@ impl Smoke3dKind {
         let grid = Grid3d::new(g.nx, g.ny, g.nz, g.lx, g.ly, g.lz)?;
         let [x0, y0] = g.origin;
         let centre = [source.center[0] - x0, source.center[1] - y0, source.z.unwrap_or(0.5 * g.lz)];
-        let advection = advection3d(setup, "physics.advection", advection)?;
+        let advection = advection3d(setup, "physics.advection", advection, false)?;
         let density_advection = match density_advection {
             None => advection,
-            Some(a) => advection3d(setup, "physics.density_advection", a)?,
+            Some(a) => advection3d(setup, "physics.density_advection", a, true)?,
         };
         // Nothing moves at rest: the step comes from `time.speed` (or `time.dt`).
         let dt = setup.pick_dt(0.0, f64::INFINITY)?;
