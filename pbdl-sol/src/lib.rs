@@ -11,9 +11,11 @@
 //!
 //! | module | what it gives you |
 //! |---|---|
+//! | [`control`] | PDE control (Holl et al. 2020) of forced 1D Burgers: observation predictors + CFE ([`control::Controller`]), supervised and end-to-end training, the direct-optimisation baseline |
 //! | [`error`] | [`Error`], [`Result`] |
 #![warn(missing_docs)]
 
+pub mod control;
 pub mod error;
 
 pub use error::{Error, Result};
