@@ -10,6 +10,7 @@ pub mod nets;
 pub mod optim;
 pub mod particles;
 pub mod smoke3d;
+pub mod sol;
 pub mod spectral;
 pub mod stability;
 pub mod weather;
