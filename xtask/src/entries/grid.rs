@@ -772,7 +772,7 @@ fn stress_smoke(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
             passed: first_nonfinite.is_none(),
             first_broken_step: first_nonfinite,
             detail: detail(error.unwrap_or_else(|| format!("{steps} steps"))),
-            measure: None,
+            measure: first_nonfinite.is_none().then_some(StressMeasure::StableSteps(steps as u64)),
         },
         StressCheck {
             invariant: format!("max |div u| dx / max |u| <= {DIV_BOUND_F32:.0e} after every step"),
