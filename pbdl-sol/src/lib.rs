@@ -12,10 +12,12 @@
 //! | module | what it gives you |
 //! |---|---|
 //! | [`control`] | PDE control (Holl et al. 2020) of forced 1D Burgers: observation predictors + CFE ([`control::Controller`]), supervised and end-to-end training, the direct-optimisation baseline |
+//! | [`sil`] | Solver-in-the-Loop (Um et al. 2020): cylinder-wake source/reference data ([`sil::generate`]), the correction ResNet ([`sil::Corrector`]), PRE / NON / SOL-m training ([`sil::train()`]), corrected rollouts and MAE ([`sil::evaluate`]) |
 //! | [`error`] | [`Error`], [`Result`] |
 #![warn(missing_docs)]
 
 pub mod control;
 pub mod error;
+pub mod sil;
 
 pub use error::{Error, Result};

@@ -1,0 +1,194 @@
+//! Reference data: the wake simulated at the reference resolution, each frame downsampled to
+//! the source grid (`T r_t`), for a set of Reynolds numbers.
+//!
+//! The transfer `T` matches the MAC layout: a coarse `u` face (`x = (I+1) dX`, rows
+//! `J dY .. (J+1) dY`) is the average of the `factor` fine `u` faces it covers (the fine faces
+//! at `x = (factor (I+1)) dx`), and likewise for `v` along x. A face average keeps the flux
+//! through every coarse face, so a divergence-free fine field stays divergence-free on the
+//! coarse grid (where no obstacle cuts the cells differently).
+
+use super::scene::WakeConfig;
+use crate::{Error, Result};
+use candle_core::{DType, Tensor};
+use pbdl_grid::Grid;
+use serde::{Deserialize, Serialize};
+
+/// The integer factor between a fine and a coarse grid over the same extent (typed error for
+/// different extents or a non-integer ratio).
+pub fn downsample_factor(fine: &Grid, coarse: &Grid) -> Result<usize> {
+    let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
+    if !(same(fine.lx, coarse.lx) && same(fine.ly, coarse.ly)) {
+        return Err(Error::invalid(
+            "downsample_factor",
+            "grid",
+            format!("the grids cover different extents: {}x{} vs {}x{}", fine.lx, fine.ly, coarse.lx, coarse.ly),
+        ));
+    }
+    if fine.nx % coarse.nx != 0 || fine.ny % coarse.ny != 0 || fine.nx / coarse.nx != fine.ny / coarse.ny {
+        return Err(Error::invalid(
+            "downsample_factor",
+            "grid",
+            format!(
+                "{}x{} cells do not divide into {}x{} by one integer factor; pick a coarse grid that divides the fine one",
+                fine.nx, fine.ny, coarse.nx, coarse.ny
+            ),
+        ));
+    }
+    Ok(fine.nx / coarse.nx)
+}
+
+/// Face-average of MAC velocities `[B, 2, ny f, nx f]` to `[B, 2, ny, nx]` (differentiable).
+///
+/// ```
+/// use candle_core::{DType, Device, Tensor};
+/// // u = x-index of the face, v = 0: a coarse u face takes the fine face on its own plane.
+/// let u = Tensor::arange(1f32, 17., &Device::Cpu)?.reshape((1, 1, 1, 16))?.repeat((1, 1, 8, 1))?;
+/// let fine = Tensor::cat(&[&u, &u.zeros_like()?], 1)?;
+/// let coarse = pbdl_sol::sil::downsample_mac(&fine, 4)?;
+/// assert_eq!(coarse.dims(), &[1, 2, 2, 4]);
+/// assert_eq!(coarse.narrow(1, 0, 1)?.flatten_all()?.to_vec1::<f32>()?, [4., 8., 12., 16., 4., 8., 12., 16.]);
+/// # Ok::<(), pbdl_sol::Error>(())
+/// ```
+pub fn downsample_mac(fine: &Tensor, factor: usize) -> Result<Tensor> {
+    let d = fine.dims();
+    if d.len() != 4 || d[1] != 2 || factor == 0 || d[2] % factor != 0 || d[3] % factor != 0 {
+        return Err(Error::Shape {
+            context: "downsample_mac",
+            expected: format!("[batch, 2, ny * {factor}, nx * {factor}] with factor >= 1"),
+            got: d.to_vec(),
+        });
+    }
+    let (b, ny, nx, f) = (d[0], d[2] / factor, d[3] / factor, factor);
+    let u = fine.narrow(1, 0, 1)?.reshape((b, 1, ny * f, nx, f))?.narrow(4, f - 1, 1)?;
+    let u = u.contiguous()?.reshape((b, 1, ny, f, nx))?.mean(3)?;
+    let v = fine.narrow(1, 1, 1)?.reshape((b, 1, ny, f, nx * f))?.narrow(3, f - 1, 1)?;
+    let v = v.contiguous()?.reshape((b, 1, ny, nx, f))?.mean(4)?;
+    Ok(Tensor::cat(&[&u, &v], 1)?)
+}
+
+/// Reynolds numbers and lengths of the data set. The default follows the paper's split: six
+/// training numbers a factor 2 apart, held-out numbers half-way between them (geometrically).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DataConfig {
+    /// Training Reynolds numbers. Default `[97.66, 195.3, 390.6, 781.3, 1562.5, 3125]`.
+    pub train_re: Vec<f64>,
+    /// Held-out Reynolds numbers. Default `[146.5, 293, 585.9, 1171.9, 2343.8]`.
+    pub test_re: Vec<f64>,
+    /// Frames simulated before recording (the wake develops). Default 200.
+    pub warmup: usize,
+    /// Frames recorded per training simulation. Default 300.
+    pub train_frames: usize,
+    /// Frames recorded per held-out simulation. Default 150.
+    pub test_frames: usize,
+}
+
+impl Default for DataConfig {
+    fn default() -> Self {
+        let base = 97.65625;
+        Self {
+            train_re: (0..6).map(|k| base * 2f64.powi(k)).collect(),
+            test_re: (0..5).map(|k| 1.5 * base * 2f64.powi(k)).collect(),
+            warmup: 200,
+            train_frames: 300,
+            test_frames: 150,
+        }
+    }
+}
+
+impl DataConfig {
+    /// Checks the settings.
+    pub fn validate(&self) -> Result<()> {
+        if self.train_re.is_empty() {
+            return Err(Error::invalid("DataConfig", "train_re", "give at least one training Reynolds number"));
+        }
+        if let Some(re) = self.train_re.iter().chain(&self.test_re).find(|r| !(**r > 0.0 && r.is_finite())) {
+            return Err(Error::invalid("DataConfig", "train_re / test_re", format!("must be positive, got {re}")));
+        }
+        if self.train_frames < 2 || (!self.test_re.is_empty() && self.test_frames < 2) {
+            return Err(Error::invalid("DataConfig", "train_frames / test_frames", "record at least 2 frames"));
+        }
+        Ok(())
+    }
+}
+
+/// One reference simulation on the source grid.
+#[derive(Clone, Debug)]
+pub struct ReferenceSim {
+    /// Its Reynolds number.
+    pub re: f64,
+    /// Downsampled frames `T r_t`, `[frames, 2, ny, nx]`.
+    pub frames: Tensor,
+}
+
+impl ReferenceSim {
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.frames.dim(0).unwrap_or(0)
+    }
+
+    /// Whether it has no frames.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Training and held-out reference simulations.
+#[derive(Clone, Debug)]
+pub struct ReferenceSet {
+    /// The scene they were made with.
+    pub wake: WakeConfig,
+    /// Training simulations.
+    pub train: Vec<ReferenceSim>,
+    /// Held-out simulations.
+    pub test: Vec<ReferenceSim>,
+}
+
+/// Simulates one reference run at `re` and returns `frames` downsampled frames after `warmup`.
+pub fn reference_run(wake: &WakeConfig, re: f64, warmup: usize, frames: usize, dtype: DType) -> Result<ReferenceSim> {
+    let fine = wake.reference_grid()?;
+    let fluid = wake.reference_stepper(re)?;
+    let mut s = wake.initial_state(&fluid, fine, dtype)?;
+    let mut out = Vec::with_capacity(frames);
+    for t in 0..warmup + frames {
+        if t >= warmup {
+            out.push(downsample_mac(s.velocity.values(), wake.factor)?);
+        }
+        for _ in 0..wake.reference_substeps {
+            s = fluid.step(&s, None)?;
+        }
+        let m = s.velocity.max_abs()?;
+        if !m.is_finite() {
+            return Err(Error::NonFinite { context: "reference_run", step: t });
+        }
+    }
+    Ok(ReferenceSim { re, frames: Tensor::cat(&out, 0)? })
+}
+
+/// All reference runs of `data` (sequential; each step is parallel inside pbdl-grid), with a
+/// progress bar over the simulations.
+pub fn generate(wake: &WakeConfig, data: &DataConfig, dtype: DType) -> Result<ReferenceSet> {
+    wake.validate()?;
+    data.validate()?;
+    let total = (data.train_re.len() + data.test_re.len()) as u64;
+    let progress = pbdl_core::train::Progress::new(total);
+    let run = |re: f64, frames: usize, k: u64| -> Result<ReferenceSim> {
+        progress.set_message(format!("reference Re {re:.1}"));
+        let r = reference_run(wake, re, data.warmup, frames, dtype)?;
+        progress.set_position(k + 1);
+        Ok(r)
+    };
+    let mut k = 0;
+    let mut train = Vec::new();
+    for &re in &data.train_re {
+        train.push(run(re, data.train_frames, k)?);
+        k += 1;
+    }
+    let mut test = Vec::new();
+    for &re in &data.test_re {
+        test.push(run(re, data.test_frames, k)?);
+        k += 1;
+    }
+    progress.finish();
+    Ok(ReferenceSet { wake: wake.clone(), train, test })
+}

@@ -1,0 +1,47 @@
+//! # Solver-in-the-Loop (Um et al., NeurIPS 2020)
+//!
+//! A coarse *source* solver `P_s` (pbdl-grid's [`pbdl_grid::Fluid`]: MacCormack advection,
+//! implicit viscosity, masked pressure projection around a cylinder) is corrected after every
+//! step by a network,
+//!
+//! `s~_{t+1} = P_s(s~_t) + C(P_s(s~_t), Re | theta)`,
+//!
+//! trained to follow a *reference* `r` simulated at `factor` times the resolution and
+//! face-averaged to the source grid (`T r`), with the loss
+//!
+//! `L = (1/m) sum_{i=1..m} 1/2 || (s~_{t+i} - T r_{t+i}) / sigma ||^2`
+//!
+//! backpropagated through `m` unrolled source steps (the pressure solve by its adjoint solve).
+//! Variants ([`Variant`]): PRE (supervised on precomputed one-step pairs), NON (`m = 1`),
+//! SOL-m.
+//!
+//! | file | gives you |
+//! |---|---|
+//! | [`scene`] | [`WakeConfig`]: the cylinder wake, source and reference solvers ([`SourceSolver`]) |
+//! | [`data`] | [`downsample_mac`] (MAC face average), [`DataConfig`] (training / held-out Re), [`generate`] reference sets |
+//! | [`net`] | [`Corrector`] (the paper's ResNet, [`CorrectorConfig`], [`Normalisation`]) |
+//! | [`train`](mod@train) | [`TrainConfig`], [`Variant`], [`train()`], [`unrolled_loss`] |
+//! | [`eval`] | [`rollout`], [`evaluate`] (MAE per step vs the reference) |
+//!
+//! ```no_run
+//! use pbdl_sol::sil::*;
+//! let wake = WakeConfig::default();
+//! let data = generate(&wake, &DataConfig::default(), candle_core::DType::F32)?;
+//! let sol = train(&data, &TrainConfig::new(Variant::Sol { m: 4 }, 1000, 0))?;
+//! let corrected = evaluate(&wake, &data.test, 100, Some(&sol.corrector))?;
+//! let source = evaluate(&wake, &data.test, 100, None)?;
+//! println!("MAE source {:.4}, SOL-4 {:.4}", source.mean_over(0, 100), corrected.mean_over(0, 100));
+//! # Ok::<(), pbdl_sol::Error>(())
+//! ```
+
+pub mod data;
+pub mod eval;
+pub mod net;
+pub mod scene;
+pub mod train;
+
+pub use data::{downsample_factor, downsample_mac, generate, reference_run, DataConfig, ReferenceSet, ReferenceSim};
+pub use eval::{evaluate, mae_per_step, rollout, Evaluation};
+pub use net::{Corrector, CorrectorConfig, Normalisation};
+pub use scene::{SourceSolver, WakeConfig};
+pub use train::{train, unrolled_loss, TrainConfig, Trained, Variant};
