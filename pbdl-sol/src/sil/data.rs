@@ -119,6 +119,10 @@ pub struct ReferenceSim {
     pub re: f64,
     /// Downsampled frames `T r_t`, `[frames, 2, ny, nx]`.
     pub frames: Tensor,
+    /// The uncorrected source trajectory from the first frame, `s^src_0 = T r_0`,
+    /// `s^src_{t+1} = P_s(s^src_t)`, `[frames, 2, ny, nx]` (the paper's NON learns from these
+    /// states). [`generate`] fills it for the training simulations; `None` elsewhere.
+    pub source: Option<Tensor>,
 }
 
 impl ReferenceSim {
@@ -162,11 +166,25 @@ pub fn reference_run(wake: &WakeConfig, re: f64, warmup: usize, frames: usize, d
             return Err(Error::NonFinite { context: "reference_run", step: t });
         }
     }
-    Ok(ReferenceSim { re, frames: Tensor::cat(&out, 0)? })
+    Ok(ReferenceSim { re, frames: Tensor::cat(&out, 0)?, source: None })
+}
+
+/// The uncorrected source trajectory of `reference`: `frames` states from `s_0 = T r_0`, each
+/// the source step `P_s` of the one before (no correction; detached), `[frames, 2, ny, nx]`.
+pub fn source_trajectory(wake: &WakeConfig, reference: &ReferenceSim) -> Result<Tensor> {
+    if reference.is_empty() {
+        return Err(Error::invalid("source_trajectory", "frames", "the reference has no frames"));
+    }
+    let source = wake.source(reference.re)?;
+    let start = reference.frames.narrow(0, 0, 1)?;
+    let mut states = vec![start.clone()];
+    states.extend(super::eval::rollout(&source, &start, reference.len() - 1, None)?);
+    Ok(Tensor::cat(&states, 0)?)
 }
 
 /// All reference runs of `data` (sequential; each step is parallel inside pbdl-grid), with a
-/// progress bar over the simulations.
+/// progress bar over the simulations. Each training simulation also gets its uncorrected
+/// source trajectory ([`source_trajectory`], for NON).
 pub fn generate(wake: &WakeConfig, data: &DataConfig, dtype: DType) -> Result<ReferenceSet> {
     wake.validate()?;
     data.validate()?;
@@ -181,7 +199,9 @@ pub fn generate(wake: &WakeConfig, data: &DataConfig, dtype: DType) -> Result<Re
     let mut k = 0;
     let mut train = Vec::new();
     for &re in &data.train_re {
-        train.push(run(re, data.train_frames, k)?);
+        let mut r = run(re, data.train_frames, k)?;
+        r.source = Some(source_trajectory(wake, &r)?);
+        train.push(r);
         k += 1;
     }
     let mut test = Vec::new();

@@ -12,15 +12,15 @@
 //! `L = (1/m) sum_{i=1..m} 1/2 || (s~_{t+i} - T r_{t+i}) / sigma ||^2`
 //!
 //! backpropagated through `m` unrolled source steps (the pressure solve by its adjoint solve).
-//! Variants ([`Variant`]): PRE (supervised on precomputed one-step pairs), NON (`m = 1`),
-//! SOL-m.
+//! Variants ([`Variant`]): PRE (one step from the downsampled reference, `P_s(T r_t)`), NON
+//! (one step from the uncorrected source trajectory, `P_s(s^src_t)`), SOL-m.
 //!
 //! | file | gives you |
 //! |---|---|
 //! | [`scene`] | [`WakeConfig`]: the cylinder wake, source and reference solvers ([`SourceSolver`]) |
-//! | [`data`] | [`downsample_mac`] (MAC face average), [`DataConfig`] (training / held-out Re), [`generate`] reference sets |
+//! | [`data`] | [`downsample_mac`] (MAC face average), [`DataConfig`] (training / held-out Re), [`generate`] reference sets, [`source_trajectory`] |
 //! | [`net`] | [`Corrector`] (the paper's ResNet, [`CorrectorConfig`], [`Normalisation`]) |
-//! | [`train`](mod@train) | [`TrainConfig`], [`Variant`], [`train()`], [`unrolled_loss`] |
+//! | [`train`](mod@train) | [`TrainConfig`], [`Variant`], [`train()`], [`unrolled_loss`], [`training_inputs`] |
 //! | [`eval`] | [`rollout`], [`evaluate`] (MAE per step vs the reference) |
 //!
 //! ```no_run
@@ -40,8 +40,11 @@ pub mod net;
 pub mod scene;
 pub mod train;
 
-pub use data::{downsample_factor, downsample_mac, generate, reference_run, DataConfig, ReferenceSet, ReferenceSim};
+pub use data::{
+    downsample_factor, downsample_mac, generate, reference_run, source_trajectory, DataConfig, ReferenceSet,
+    ReferenceSim,
+};
 pub use eval::{evaluate, mae_per_step, rollout, Evaluation};
 pub use net::{Corrector, CorrectorConfig, Normalisation};
 pub use scene::{SourceSolver, WakeConfig};
-pub use train::{train, unrolled_loss, TrainConfig, Trained, Variant};
+pub use train::{train, training_inputs, unrolled_loss, TrainConfig, Trained, Variant};

@@ -5,12 +5,16 @@
 //!   `(1/m) sum_i 1/2 mean(((s~_{t+i} - T r_{t+i}) / sigma)^2)`, backpropagated through the
 //!   `m` solver steps (advection, implicit viscosity, masked pressure solve: pbdl-grid's
 //!   adjoints).
-//! * **NON**: SOL-1. With the correction applied *after* the solver step, one step's gradient
-//!   never passes through the solver: the network learns from states that never saw a
-//!   correction.
-//! * **PRE**: supervised on pairs `(P_s(T r_t), T r_{t+1})` computed once before training; the
-//!   loss has no solver in it. Its objective equals NON's; it differs in that the inputs are
-//!   precomputed (and in the order of the random batches).
+//! * **NON** (non-interacting): the source solver is run once from `T r_0` without any
+//!   correction, giving the source trajectory `s^src_t`
+//!   ([`ReferenceSim::source`](super::data::ReferenceSim::source)); the network is trained on
+//!   pairs `(P_s(s^src_t), T r_{t+1})`, i.e. on states that never saw a correction and drift
+//!   away from the reference (the train/test mismatch of the paper).
+//! * **PRE**: supervised on pairs `(P_s(T r_t), T r_{t+1})` computed once before training
+//!   (one source step from the downsampled reference); the loss has no solver in it.
+//!
+//! PRE and NON share the loss `1/2 mean(((x + C(x) - T r_{t+1}) / sigma)^2)` and the batch
+//! sampling; they differ in the inputs `x`.
 //!
 //! Every run is seeded (initial weights and batch sampling); Adam, learning rate 1e-4 by
 //! default (the paper's).
@@ -28,9 +32,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case", tag = "kind")]
 pub enum Variant {
-    /// Supervised on precomputed one-step pairs.
+    /// Supervised on one source step from the downsampled reference, `P_s(T r_t)`.
     Pre,
-    /// Through one solver step (SOL-1).
+    /// Supervised on one source step from the uncorrected source trajectory, `P_s(s^src_t)`.
     Non,
     /// Through `m` unrolled solver steps.
     Sol {
@@ -114,7 +118,7 @@ impl TrainConfig {
     pub fn validate(&self, data: &ReferenceSet) -> Result<()> {
         const C: &str = "TrainConfig";
         if let Variant::Sol { m: 0 } = self.variant {
-            return Err(Error::invalid(C, "variant.m", "unroll at least one step (m >= 1; m = 1 is NON)"));
+            return Err(Error::invalid(C, "variant.m", "unroll at least one step (m >= 1)"));
         }
         if self.batch == 0 {
             return Err(Error::invalid(C, "batch", "use at least 1"));
@@ -146,6 +150,20 @@ impl TrainConfig {
                     expected: format!("frames [T, 2, {}, {}] on the source grid", grid.ny, grid.nx),
                     got: d.to_vec(),
                 });
+            }
+        }
+        if self.variant == Variant::Non {
+            if let Some(r) = data.train.iter().find(|r| r.source.as_ref().map(|s| s.dims()) != Some(r.frames.dims())) {
+                return Err(Error::invalid(
+                    C,
+                    "data.train.source",
+                    format!(
+                        "NON needs the uncorrected source trajectory of every training simulation (as many frames \
+                         as the reference; `generate` or `source_trajectory` make it), Re {} has {:?}",
+                        r.re,
+                        r.source.as_ref().map(|s| s.dims().to_vec())
+                    ),
+                ));
             }
         }
         Ok(())
@@ -188,6 +206,40 @@ fn scaled_half_mse(s: &Tensor, target: &Tensor, inv: &Tensor) -> Result<Tensor> 
     Ok((s - target)?.broadcast_mul(inv)?.sqr()?.mean_all()?.affine(0.5, 0.0)?)
 }
 
+/// The precomputed one-step inputs of PRE (`P_s(T r_t)`) and NON (`P_s(s^src_t) =
+/// s^src_{t+1}`), `t = 0..frames-1`, one tensor per training simulation, paired with the targets
+/// `T r_{t+1}`; `None` for SOL-m.
+fn one_step_inputs(data: &ReferenceSet, sources: &[SourceSolver], variant: Variant) -> Result<Option<Vec<Tensor>>> {
+    Ok(match variant {
+        Variant::Pre => Some(
+            data.train
+                .iter()
+                .zip(sources)
+                .map(|(r, src)| src.step(&r.frames.narrow(0, 0, r.len() - 1)?))
+                .collect::<Result<_>>()?,
+        ),
+        Variant::Non => Some(
+            data.train
+                .iter()
+                .map(|r| {
+                    let s = r.source.as_ref().expect("validated: NON has source trajectories");
+                    Ok(s.narrow(0, 1, r.len() - 1)?)
+                })
+                .collect::<Result<_>>()?,
+        ),
+        Variant::Sol { .. } => None,
+    })
+}
+
+/// The one-step training inputs of `variant` for every training simulation of `data`
+/// (`[frames - 1, 2, ny, nx]` each, input `t` paired with the target `T r_{t+1}`): PRE's
+/// `P_s(T r_t)`, NON's `P_s(s^src_t)`; `None` for SOL-m (its inputs are the reference frames).
+pub fn training_inputs(data: &ReferenceSet, variant: Variant) -> Result<Option<Vec<Tensor>>> {
+    TrainConfig::new(variant, 1, 0).validate(data)?;
+    let sources: Vec<SourceSolver> = data.train.iter().map(|r| data.wake.source(r.re)).collect::<Result<_>>()?;
+    one_step_inputs(data, &sources, variant)
+}
+
 /// A trained corrector and its loss curve.
 #[derive(Debug)]
 pub struct Trained {
@@ -208,17 +260,8 @@ pub fn train(data: &ReferenceSet, config: &TrainConfig) -> Result<Trained> {
     let norm = Normalisation::from_data(data)?;
     let corrector = Corrector::new(config.corrector, norm, dtype, config.seed)?;
     let sources: Vec<SourceSolver> = data.train.iter().map(|r| data.wake.source(r.re)).collect::<Result<_>>()?;
-    // PRE: the one-step source states, computed once.
-    let pre: Option<Vec<Tensor>> = match config.variant {
-        Variant::Pre => Some(
-            data.train
-                .iter()
-                .zip(&sources)
-                .map(|(r, src)| src.step(&r.frames.narrow(0, 0, r.len() - 1)?))
-                .collect::<Result<_>>()?,
-        ),
-        _ => None,
-    };
+    // PRE and NON: the one-step inputs, computed once.
+    let pre: Option<Vec<Tensor>> = one_step_inputs(data, &sources, config.variant)?;
     let m = config.variant.unroll();
     let opt_cfg = OptimizerConfig::Adam(AdamConfig { lr: config.lr, ..AdamConfig::default() });
     let vars = corrector.varmap().all_vars();
