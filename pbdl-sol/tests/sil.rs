@@ -283,6 +283,9 @@ fn non_learns_from_the_uncorrected_source_trajectory() {
 /// * SOL-8's MAE over the 128-step rollouts is below the source's;
 /// * SOL-8's MAE over steps 65..128 is below NON's and PRE's.
 ///
+/// Since 2026-11-27 the same three bars apply to every SOL-m in the run (`SIL_VARIANTS`,
+/// e.g. `pre,non,sol2,sol16` for the m = 2 and 16), stated before those were run.
+///
 /// Affordable settings for a 2-core machine (deviations from the paper, see the report):
 /// a smaller network (width 16, 2 residual blocks, 5x5), Adam lr 1e-3, batch 2, seed 0
 /// (`SIL_SEED=<n>` for another),
@@ -320,7 +323,21 @@ fn acceptance_held_out_re() {
     // Seed of the weights and batches: `SIL_SEED` (default 0).
     let seed = std::env::var("SIL_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(0u64);
     let mut rows = vec![("source".to_string(), source.clone(), 0.0, f64::NAN)];
-    for variant in [Variant::Pre, Variant::Non, Variant::Sol { m: 4 }, Variant::Sol { m: 8 }] {
+    // Variants: `SIL_VARIANTS` (comma list of pre, non, sol<m>; default pre,non,sol4,sol8).
+    // PRE and NON must be in the list: every SOL-m row is checked against them.
+    let variants = std::env::var("SIL_VARIANTS").unwrap_or_else(|_| "pre,non,sol4,sol8".into());
+    let variants: Vec<Variant> = variants
+        .split(',')
+        .map(|v| match v.trim() {
+            "pre" => Variant::Pre,
+            "non" => Variant::Non,
+            s => Variant::Sol {
+                m: s.strip_prefix("sol").and_then(|m| m.parse().ok()).expect("SIL_VARIANTS: pre, non or sol<m>"),
+            },
+        })
+        .collect();
+    assert!(variants.contains(&Variant::Pre) && variants.contains(&Variant::Non), "SIL_VARIANTS needs pre and non");
+    for variant in variants {
         let cfg = TrainConfig { corrector: net, batch: 2, lr: 1e-3, ..TrainConfig::new(variant, 2000, seed) };
         let trained = train(&data, &cfg).unwrap();
         let n = trained.losses.len();
@@ -345,14 +362,28 @@ fn acceptance_held_out_re() {
         );
     }
     let get = |name: &str| rows.iter().find(|r| r.0 == name).unwrap().1.clone();
-    let (src, sol, non, pre) = (get("source"), get("SOL-8"), get("NON"), get("PRE"));
-    let (sol_all, src_all) = (sol.mean_over(0, steps), src.mean_over(0, steps));
-    eprintln!("ACCEPTANCE: measured={sol_all:.5} bar={src_all:.5} (SOL-8 MAE over 128 held-out steps < source)");
-    let (sol_long, non_long, pre_long) = (sol.mean_over(64, steps), non.mean_over(64, steps), pre.mean_over(64, steps));
-    eprintln!("ACCEPTANCE: measured={sol_long:.5} bar={non_long:.5} (SOL-8 MAE steps 65-128 < NON)");
-    eprintln!("ACCEPTANCE: measured={sol_long:.5} bar={pre_long:.5} (SOL-8 MAE steps 65-128 < PRE)");
+    let (src, non, pre) = (get("source"), get("NON"), get("PRE"));
+    let src_all = src.mean_over(0, steps);
+    let (non_long, pre_long) = (non.mean_over(64, steps), pre.mean_over(64, steps));
+    // Every SOL-m row of the run against the three bars (the default run: SOL-4 and SOL-8).
+    let mut missed = Vec::new();
+    for (name, ev, _, _) in rows.iter().filter(|r| r.0.starts_with("SOL-")) {
+        let (all, long) = (ev.mean_over(0, steps), ev.mean_over(64, steps));
+        for (what, measured, bar) in [
+            ("MAE over 128 held-out steps < source", all, src_all),
+            ("MAE steps 65-128 < NON", long, non_long),
+            ("MAE steps 65-128 < PRE", long, pre_long),
+        ] {
+            let met = measured < bar;
+            eprintln!(
+                "ACCEPTANCE: measured={measured:.5} bar={bar:.5} ({name} {what}){}",
+                if met { "" } else { " NOT MET" }
+            );
+            if !met {
+                missed.push(format!("{name} {what}: {measured:.5} vs {bar:.5}"));
+            }
+        }
+    }
     eprintln!("total {:.0} s", t_all.elapsed().as_secs_f64());
-    assert!(sol_all < src_all, "SOL-8 {sol_all} vs source {src_all}");
-    assert!(sol_long < non_long, "SOL-8 {sol_long} vs NON {non_long}");
-    assert!(sol_long < pre_long, "SOL-8 {sol_long} vs PRE {pre_long}");
+    assert!(missed.is_empty(), "bars missed: {missed:?}");
 }
