@@ -31,6 +31,24 @@ pub enum Error {
         /// The step at which it was first seen.
         step: usize,
     },
+    /// A run directory holds a run started with other settings than those given to resume it
+    /// (or a run of another trainer); nothing was loaded.
+    #[error(
+        "{}: the run in this directory was started with `{field}` = {stored}, this call has {given}; \
+         resume with the run's setting, or start a new run directory",
+        dir.display()
+    )]
+    ResumeMismatch {
+        /// The run directory.
+        dir: std::path::PathBuf,
+        /// The differing setting, as a dotted path into the checkpoint's recorded config
+        /// (e.g. `train.lr`, `data.digest`, `trainer`).
+        field: String,
+        /// Its value in the run directory (JSON).
+        stored: String,
+        /// Its value in this call (JSON).
+        given: String,
+    },
     /// An error of pbdl-core (IO, checkpoints, tensor ops).
     #[error(transparent)]
     Core(#[from] pbdl_core::Error),

@@ -19,6 +19,15 @@
 //! * `data metric|acdm ... --shard i/n --out DIR` (also `sim grid|particles --seeds N --shard i/n`,
 //!   `weather generate --shard i/n`): training data in shards for a job array;
 //!   `data check DIR`: every item once, hashes as recorded (see `pbdl_core::shard`).
+//! * `sol train --variant pre|non|sol-<m> --out DIR [--iterations N] [--seed S] [--config F]
+//!   [--quick]`: Solver-in-the-Loop on the cylinder wake; generates the reference data (cached in
+//!   `DIR/data/`) and trains resumably into `DIR` (the same command continues a stopped run).
+//!   `sol eval --runs DIR... [--steps 128] --out F`: velocity MAE per step on the held-out Re for
+//!   the source and each run; `F.md`, `F.json` (mean MAE over steps 1-32, 1-128, 65-128), `F.png`.
+//! * `control train --out DIR [--config F] [--seed S] [--quick]`: PDE control of forced Burgers,
+//!   supervised pre-training then end-to-end training, each phase resumable.
+//!   `control eval --run DIR --out F`: held-out scenes, controller vs supervised-only vs direct
+//!   optimiser at equal wall-clock vs no control; `F.md`, `F.json` (effort, target error, combined).
 //! * `ci`: format check, clippy with `-D warnings`, the test suite.
 
 mod bench;
@@ -27,6 +36,7 @@ mod data;
 mod metric;
 mod report;
 mod sim;
+mod sol;
 mod stress;
 mod stress_summary;
 mod tour;
@@ -177,6 +187,14 @@ enum Command {
     /// Training data in shards (`--shard i/n`, one job each, any scheduler) and their check.
     #[command(subcommand)]
     Data(data::DataCommand),
+    /// Solver-in-the-Loop (Um et al. 2020) on the cylinder wake: train PRE / NON / SOL-m
+    /// correctors (resumable), evaluate them on held-out Reynolds numbers.
+    #[command(subcommand)]
+    Sol(sol::SolCommand),
+    /// PDE control of forced 1D Burgers (Holl et al. 2020): train the controller (resumable),
+    /// evaluate it against the direct optimiser and no control.
+    #[command(subcommand)]
+    Control(sol::ControlCommand),
     /// fmt check, clippy -D warnings, tests.
     Ci,
     /// List the registered tour, bench and stress entries.
@@ -378,6 +396,8 @@ fn main() -> anyhow::Result<()> {
             let out = out.unwrap_or_else(|| report::target_dir().join("weather/eval"));
             weather::eval(weather::EvalArgs { data, runs, out })
         }
+        Command::Sol(cmd) => sol::run_sol(cmd),
+        Command::Control(cmd) => sol::run_control(cmd),
         Command::Ci => ci::run(),
         Command::List => {
             registry::print_list();

@@ -13,7 +13,8 @@
 //! | [`loss`] | [`loss::effort`], [`loss::target_error`], [`loss::combined`], [`ControlScore`] |
 //! | [`network`] | [`ConvNet1d`]: the periodic 1D U-Net of every predictor and the CFE |
 //! | [`controller`] | [`Controller`]: `OP_2 .. OP_T` and the CFE, executed with prediction refinement |
-//! | [`train`] | [`pretrain_supervised`], [`train_end_to_end`] (through the solver), [`TrainConfig`] |
+//! | [`train`] | [`pretrain_supervised`], [`train_end_to_end`] (through the solver), [`TrainConfig`]; their crash-safe, exactly resumable run-directory forms [`pretrain_supervised_resumable`], [`train_end_to_end_resumable`] |
+//! | [`resume`] | [`RunDir`] (directory and checkpoint cadence) and the resume check shared with [`crate::sil::train_resumable`] |
 //! | [`optimize`] | [`optimize_forces`]: the iterative baseline (Adam on the 32 force fields) with a wall-clock budget |
 //!
 //! ```
@@ -40,6 +41,7 @@ pub mod loss;
 pub mod network;
 pub mod optimize;
 pub mod physics;
+pub mod resume;
 pub mod scene;
 pub mod train;
 
@@ -49,5 +51,9 @@ pub use loss::ControlScore;
 pub use network::{ConvNet1d, ConvNetConfig};
 pub use optimize::{optimize_forces, DirectOptimConfig, DirectOptimResult};
 pub use physics::ForcedBurgers;
+pub use resume::RunDir;
 pub use scene::ControlScenes;
-pub use train::{pretrain_supervised, train_end_to_end, TrainConfig, TrainReport};
+pub use train::{
+    pretrain_supervised, pretrain_supervised_resumable, train_end_to_end, train_end_to_end_resumable, TrainConfig,
+    TrainReport,
+};

@@ -20,7 +20,7 @@
 //! | [`scene`] | [`WakeConfig`]: the cylinder wake, source and reference solvers ([`SourceSolver`]) |
 //! | [`data`] | [`downsample_mac`] (MAC face average), [`DataConfig`] (training / held-out Re), [`generate`] reference sets, [`source_trajectory`] |
 //! | [`net`] | [`Corrector`] (the paper's ResNet, [`CorrectorConfig`], [`Normalisation`]) |
-//! | [`train`](mod@train) | [`TrainConfig`], [`Variant`], [`train()`], [`unrolled_loss`], [`training_inputs`] |
+//! | [`train`](mod@train) | [`TrainConfig`], [`Variant`], [`train()`], [`train_resumable`] (a crash-safe, exactly resumable run directory), [`load_trained`], [`unrolled_loss`], [`training_inputs`] |
 //! | [`eval`] | [`rollout`], [`evaluate`] (MAE per step vs the reference) |
 //!
 //! ```no_run
@@ -47,4 +47,4 @@ pub use data::{
 pub use eval::{evaluate, mae_per_step, rollout, Evaluation};
 pub use net::{Corrector, CorrectorConfig, Normalisation};
 pub use scene::{SourceSolver, WakeConfig};
-pub use train::{train, training_inputs, unrolled_loss, TrainConfig, Trained, Variant};
+pub use train::{load_trained, train, train_resumable, training_inputs, unrolled_loss, TrainConfig, Trained, Variant};

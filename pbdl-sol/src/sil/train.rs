@@ -18,15 +18,27 @@
 //!
 //! Every run is seeded (initial weights and batch sampling); Adam, learning rate 1e-4 by
 //! default (the paper's).
+//!
+//! [`train_resumable`] is the same training in a run directory (pbdl-core's
+//! [`TrainLoop`]): `loss.csv` and atomic checkpoints, each one commit of the weights and Adam's
+//! moments and update count, every [`TrainConfig::checkpoint_every`] updates and after the
+//! last. A call on a directory with checkpoints resumes from the newest and ends as the
+//! uninterrupted run, bit for bit (the batches of the steps before the checkpoint are replayed
+//! from the seed; none depends on the network); a directory of other settings or data is
+//! refused ([`Error::ResumeMismatch`]). [`load_trained`] reads a run directory's corrector back.
 
 use super::data::ReferenceSet;
 use super::net::{Corrector, CorrectorConfig, Normalisation};
 use super::scene::SourceSolver;
+use crate::control::resume::{canonical, check_resume, digest, layout, logged_losses};
 use crate::{Error, Result};
-use candle_core::Tensor;
-use pbdl_core::train::{train_step, AdamConfig, ClipConfig, NanGuard, OptimizerConfig, Progress};
+use candle_core::{DType, Tensor};
+use pbdl_core::io::{latest_checkpoint, load_varmap, read_checkpoint_info, CheckpointMeta};
+use pbdl_core::train::{AdamConfig, ClipConfig, LoopConfig, OptimizerConfig, TrainLoop};
+use rand::rngs::StdRng;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// Which learning method.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -87,6 +99,10 @@ pub struct TrainConfig {
     /// Show a progress bar (hidden anyway when stdout is not a terminal). Default true.
     #[serde(default = "yes")]
     pub progress: bool,
+    /// Updates between the checkpoints of a run directory ([`train_resumable`]), which also
+    /// writes one after the last update (0: only that one). Ignored by [`train()`]. Default 100.
+    #[serde(default = "checkpoint_every")]
+    pub checkpoint_every: u64,
 }
 
 fn one() -> usize {
@@ -97,6 +113,9 @@ fn lr() -> f64 {
 }
 fn yes() -> bool {
     true
+}
+fn checkpoint_every() -> u64 {
+    100
 }
 
 impl TrainConfig {
@@ -111,6 +130,7 @@ impl TrainConfig {
             clip: ClipConfig::None,
             seed,
             progress: true,
+            checkpoint_every: checkpoint_every(),
         }
     }
 
@@ -245,15 +265,117 @@ pub fn training_inputs(data: &ReferenceSet, variant: Variant) -> Result<Option<V
 pub struct Trained {
     /// The network.
     pub corrector: Corrector,
-    /// Loss of every update.
+    /// Loss of every update (of a run directory: of the whole run, the updates before a resume
+    /// read back from its `loss.csv`).
     pub losses: Vec<f64>,
-    /// Wall time of the training, seconds.
+    /// Wall time of this call, seconds.
     pub seconds: f64,
+    /// The update this call started from: the resumed checkpoint's, 0 for a fresh run.
+    pub resumed_from: u64,
+    /// Whether Adam's moments and update count came back from the resumed checkpoint (`false`
+    /// for a fresh run, and for a checkpoint without optimiser state: its moments restart and
+    /// the run is close to, not equal to, the uninterrupted one).
+    pub optimizer_restored: bool,
 }
 
-/// Trains a corrector on `data` as `config` says. The source solvers (one per training
-/// Reynolds number) are built from `data.wake`.
+/// Trains a corrector on `data` as `config` says, in memory. The source solvers (one per
+/// training Reynolds number) are built from `data.wake`. [`train_resumable`] is the same
+/// training in a run directory.
 pub fn train(data: &ReferenceSet, config: &TrainConfig) -> Result<Trained> {
+    fit(data, config, None)
+}
+
+/// [`train()`] in the run directory `run_dir`, crash-safe and resumable: every update is logged
+/// to `run_dir/loss.csv`, and the checkpoint `run_dir/step-<n>` is written every
+/// [`TrainConfig::checkpoint_every`] updates and after the last, each one atomic commit of the
+/// corrector's weights, Adam's moments and update count, and the run's settings. A call on a
+/// directory that holds checkpoints continues from the newest: the weights and Adam's state are
+/// restored and the batches of the steps before it replayed from the seed, so a run stopped at
+/// any point (`kill -9` included) and called again with the same `data` and `config` ends with
+/// the same losses, weights, `loss.csv` and checkpoints, bit for bit, as one that never stopped.
+/// [`TrainConfig::iterations`] may grow between calls (train 500, then continue to 1000);
+/// [`TrainConfig::progress`] and [`TrainConfig::checkpoint_every`] may change.
+///
+/// Errors: [`Error::ResumeMismatch`] when the directory holds a run of other settings (variant,
+/// network, batch, learning rate, clipping, seed) or other data (training Reynolds numbers,
+/// frames, dtype, scene, the frames' digest), naming the setting; nothing is loaded then.
+/// [`Error::InvalidConfig`] (`iterations`) when the directory already holds more updates than
+/// asked for. One trainer per directory.
+///
+/// ```
+/// use candle_core::DType;
+/// use pbdl_sol::sil::*;
+///
+/// let wake = WakeConfig { coarse: [16, 8], factor: 2, radius: 14.0, reference_substeps: 1, ..Default::default() };
+/// let data_cfg = DataConfig { train_re: vec![200.0], test_re: vec![], warmup: 5, train_frames: 6, test_frames: 0 };
+/// let data = generate(&wake, &data_cfg, DType::F32)?;
+/// let cfg = TrainConfig {
+///     corrector: CorrectorConfig { width: 4, blocks: 1, kernel: 3, ..Default::default() },
+///     progress: false,
+///     checkpoint_every: 2,
+///     ..TrainConfig::new(Variant::Sol { m: 2 }, 4, 0)
+/// };
+/// let dir = tempfile::tempdir().unwrap();
+/// let first = train_resumable(&data, &TrainConfig { iterations: 2, ..cfg.clone() }, dir.path())?;
+/// let rest = train_resumable(&data, &cfg, dir.path())?; // continues after update 2
+/// assert_eq!((rest.resumed_from, rest.losses.len()), (2, 4));
+/// assert_eq!(rest.losses[..2], first.losses[..]);
+/// assert_eq!(rest.losses, train(&data, &cfg)?.losses); // as if it never stopped
+/// # Ok::<(), pbdl_sol::Error>(())
+/// ```
+pub fn train_resumable(data: &ReferenceSet, config: &TrainConfig, run_dir: impl AsRef<Path>) -> Result<Trained> {
+    fit(data, config, Some(run_dir.as_ref()))
+}
+
+/// The name under which [`train_resumable`] records its checkpoints (the `trainer` entry).
+const TRAINER: &str = "pbdl_sol::sil::train_resumable";
+
+/// What a run's numbers depend on besides the number of updates: the sidecar `config` of
+/// every checkpoint of [`train_resumable`], compared on resume.
+fn run_config(
+    data: &ReferenceSet,
+    config: &TrainConfig,
+    corrector: &Corrector,
+    dtype: DType,
+) -> Result<serde_json::Value> {
+    let frames = data.train.iter().map(|r| &r.frames);
+    let sources = data.train.iter().filter_map(|r| r.source.as_ref());
+    let norm = corrector.normalisation();
+    let bits = [norm.sigma[0], norm.sigma[1], norm.re_mean, norm.re_std].map(f64::to_bits);
+    canonical(serde_json::json!({
+        "trainer": TRAINER,
+        "train": {
+            "variant": config.variant,
+            "corrector": config.corrector,
+            "batch": config.batch,
+            "lr": config.lr,
+            "clip": config.clip,
+            "seed": config.seed,
+        },
+        "network": layout(corrector.varmap()),
+        "normalisation": norm,
+        // Exactly (a JSON float may read back one unit in the last place off).
+        "normalisation_bits": bits,
+        "data": {
+            "dtype": format!("{dtype:?}"),
+            "wake": data.wake,
+            "train_re": data.train.iter().map(|r| r.re).collect::<Vec<_>>(),
+            "frames": data.train.iter().map(|r| r.len()).collect::<Vec<_>>(),
+            "digest": digest(frames.chain(sources))?,
+        },
+    }))
+}
+
+/// One update's random draws: the training simulation and the batch's start frames.
+fn draw(rng: &mut StdRng, data: &ReferenceSet, batch: usize, m: usize) -> (usize, Vec<u32>) {
+    let k = rng.random_range(0..data.train.len());
+    let sim = &data.train[k];
+    let starts = (0..batch).map(|_| rng.random_range(0..(sim.len() - m) as u32)).collect();
+    (k, starts)
+}
+
+/// [`train()`] (`dir = None`) and [`train_resumable`].
+fn fit(data: &ReferenceSet, config: &TrainConfig, dir: Option<&Path>) -> Result<Trained> {
     config.validate(data)?;
     let t0 = std::time::Instant::now();
     let dtype = data.train[0].frames.dtype();
@@ -263,41 +385,99 @@ pub fn train(data: &ReferenceSet, config: &TrainConfig) -> Result<Trained> {
     // PRE and NON: the one-step inputs, computed once.
     let pre: Option<Vec<Tensor>> = one_step_inputs(data, &sources, config.variant)?;
     let m = config.variant.unroll();
-    let opt_cfg = OptimizerConfig::Adam(AdamConfig { lr: config.lr, ..AdamConfig::default() });
-    let vars = corrector.varmap().all_vars();
-    let mut opt = opt_cfg.build(vars.clone())?;
-    let mut guard = NanGuard::new();
-    let mut rng = pbdl_core::seed::rng(config.seed ^ 0x5011_5eed);
-    let progress = if config.progress {
-        Progress::new(config.iterations as u64)
-    } else {
-        Progress::hidden(config.iterations as u64)
+    let run_cfg = match dir {
+        Some(dir) => {
+            let c = run_config(data, config, &corrector, dtype)?;
+            check_resume("train_resumable", dir, &c, config.iterations)?;
+            c
+        }
+        None => serde_json::Value::Null,
     };
-    progress.set_message(config.variant.name());
-    let mut losses = Vec::with_capacity(config.iterations);
-    for it in 0..config.iterations {
-        let k = rng.random_range(0..data.train.len());
-        let sim = &data.train[k];
-        let starts: Vec<u32> = (0..config.batch).map(|_| rng.random_range(0..(sim.len() - m) as u32)).collect();
-        let idx =
-            |off: u32| Tensor::new(starts.iter().map(|s| s + off).collect::<Vec<u32>>(), &candle_core::Device::Cpu);
-        let loss = match &pre {
-            Some(pre) => {
-                let x = pre[k].index_select(&idx(0)?, 0)?;
-                let y = sim.frames.index_select(&idx(1)?, 0)?;
-                scaled_half_mse(&corrector.apply(&x, sim.re)?, &y, &inverse_sigma(&corrector, &x)?)?
-            }
-            None => {
-                let start = sim.frames.index_select(&idx(0)?, 0)?;
-                let targets: Vec<Tensor> =
-                    (1..=m as u32).map(|i| sim.frames.index_select(&idx(i)?, 0)).collect::<candle_core::Result<_>>()?;
-                unrolled_loss(&corrector, &sources[k], &start, &targets)?
-            }
-        };
-        let info = train_step(it as u64, &loss, &mut opt, &vars, &config.clip, &mut guard)?;
-        losses.push(info.loss);
-        progress.update(it as u64, info.loss);
+    let loop_cfg = LoopConfig {
+        steps: config.iterations as u64,
+        checkpoint_every: config.checkpoint_every,
+        dir: dir.map(Path::to_path_buf),
+        clip: config.clip,
+        progress: config.progress,
+        ..Default::default()
+    };
+    let run = TrainLoop::resume(corrector.varmap(), loop_cfg)?;
+    let start = run.start();
+    let mut rng = pbdl_core::seed::rng(config.seed ^ 0x5011_5eed);
+    // The draws of the updates before the checkpoint: none depends on the network.
+    for _ in 0..start {
+        draw(&mut rng, data, config.batch, m);
     }
-    progress.finish();
-    Ok(Trained { corrector, losses, seconds: t0.elapsed().as_secs_f64() })
+    let meta = |step: u64| CheckpointMeta { step, seed: Some(config.seed), config: run_cfg.clone() };
+    let adam = OptimizerConfig::Adam(AdamConfig { lr: config.lr, ..AdamConfig::default() });
+    let report = run.run::<Error>(
+        &adam,
+        |_| config.lr,
+        meta,
+        |_| {
+            let (k, starts) = draw(&mut rng, data, config.batch, m);
+            let sim = &data.train[k];
+            let idx =
+                |off: u32| Tensor::new(starts.iter().map(|s| s + off).collect::<Vec<u32>>(), &candle_core::Device::Cpu);
+            match &pre {
+                Some(pre) => {
+                    let x = pre[k].index_select(&idx(0)?, 0)?;
+                    let y = sim.frames.index_select(&idx(1)?, 0)?;
+                    scaled_half_mse(&corrector.apply(&x, sim.re)?, &y, &inverse_sigma(&corrector, &x)?)
+                }
+                None => {
+                    let start = sim.frames.index_select(&idx(0)?, 0)?;
+                    let targets: Vec<Tensor> = (1..=m as u32)
+                        .map(|i| sim.frames.index_select(&idx(i)?, 0))
+                        .collect::<candle_core::Result<_>>()?;
+                    unrolled_loss(&corrector, &sources[k], &start, &targets)
+                }
+            }
+        },
+    )?;
+    let losses = match dir {
+        Some(dir) => logged_losses(dir)?,
+        None => report.losses.iter().map(|&(_, l)| l).collect(),
+    };
+    Ok(Trained {
+        corrector,
+        losses,
+        seconds: t0.elapsed().as_secs_f64(),
+        resumed_from: start,
+        optimizer_restored: report.optimizer_restored,
+    })
+}
+
+/// The corrector of the newest checkpoint of a [`train_resumable`] run directory, with the
+/// network settings and normalisation recorded there, and the checkpoint's step.
+pub fn load_trained(run_dir: impl AsRef<Path>) -> Result<(Corrector, u64)> {
+    let dir = run_dir.as_ref();
+    let bad = |reason: String| Error::invalid("load_trained", "run_dir", format!("{}: {reason}", dir.display()));
+    let path = latest_checkpoint(dir)?.ok_or_else(|| bad("holds no checkpoint; train into it first".into()))?;
+    let info = read_checkpoint_info(&path)?;
+    if info.config.get("trainer").and_then(|t| t.as_str()) != Some(TRAINER) {
+        return Err(bad(format!("its checkpoints were not written by {TRAINER}")));
+    }
+    let field = |name: &str| info.config.pointer(name).cloned().unwrap_or_default();
+    let read = |name: &str| -> Result<serde_json::Value> {
+        let v = field(name);
+        if v.is_null() {
+            return Err(bad(format!("the checkpoint records no `{name}`")));
+        }
+        Ok(v)
+    };
+    let cfg: CorrectorConfig = serde_json::from_value(read("/train/corrector")?)
+        .map_err(|e| bad(format!("unreadable corrector settings: {e}")))?;
+    let bits: [u64; 4] = serde_json::from_value(read("/normalisation_bits")?)
+        .map_err(|e| bad(format!("unreadable normalisation: {e}")))?;
+    let [s0, s1, re_mean, re_std] = bits.map(f64::from_bits);
+    let norm = Normalisation { sigma: [s0, s1], re_mean, re_std };
+    let dtype = match read("/data/dtype")?.as_str() {
+        Some("F64") => DType::F64,
+        Some("F32") => DType::F32,
+        other => return Err(bad(format!("unsupported dtype {other:?}"))),
+    };
+    let corrector = Corrector::new(cfg, norm, dtype, 0)?;
+    load_varmap(&path, corrector.varmap())?;
+    Ok((corrector, info.step))
 }
