@@ -1,6 +1,7 @@
 //! pbdl-sol's entries: PDE control of forced Burgers (Holl et al. 2020) on held-out scenes, and
 //! Solver-in-the-Loop (Um et al. 2020) on a cylinder wake at a held-out Reynolds number.
 
+use crate::bench_schema::BenchRow;
 use crate::registry::{CrateTasks, Entry, StressCheck, StressMeasure, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::{DType, Device, Tensor};
 use pbdl_core::viz::{line_plot, rollout_to_gif, ColorRange, FieldStyle, GifStyle, PlotStyle, Series};
@@ -27,7 +28,11 @@ pub fn tasks() -> CrateTasks {
                 run: tour_solver_in_the_loop,
             },
         ],
-        bench: vec![],
+        bench: vec![Entry {
+            name: "sil_time_vs_error",
+            about: "Solver-in-the-Loop time against error on held-out Re: source 1x, SOL-8-corrected 1x (the acceptance test's corrector, trained once and cached), source 2x and 4x (dt 1), reference; velocity MAE vs the 4x reference over 128 steps and time per frame; says whether the corrected coarse solver is cheaper than the fine one at equal error.",
+            run: bench_sil_time_vs_error,
+        }],
         stress: vec![Entry {
             name: "sil_long_rollout",
             about: "A briefly trained Solver-in-the-Loop corrector rolled out 1000 steps (quick: 50) at a held-out Reynolds number: finite, and max |u| <= 5 x inflow every step.",
@@ -343,6 +348,319 @@ fn stress_sil_long_rollout(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
     ])
 }
 
+/// The settings of the time-against-error bench: the scene, the data, the SOL-8 training and
+/// the held-out rollouts.
+struct SilTimeVsError {
+    wake: sil::WakeConfig,
+    data: sil::DataConfig,
+    train: sil::TrainConfig,
+    steps: usize,
+    /// Interleaved timing rounds of one frame per method.
+    rounds: usize,
+}
+
+/// Full: the default wake (source 64 x 32, reference 4x, 2 sub-steps) and exactly the acceptance
+/// test's data and SOL-8 training (pbdl-sol/tests/sil.rs, `acceptance_held_out_re`, seed 0: six
+/// training Re, 200 frames after 100 warm-up frames, width-16 corrector with 2 blocks, 2000
+/// updates, batch 2, Adam 1e-3), 128 steps on the five held-out Re. Quick: plumbing on a 16 x 8
+/// wake (reference 4x).
+fn sil_time_vs_error_setup(quick: bool) -> SilTimeVsError {
+    let net = sil::CorrectorConfig { width: 16, blocks: 2, kernel: 5, negative_slope: 0.3, zero_output: true };
+    let (wake, data, iterations, steps, rounds) = if quick {
+        let wake =
+            sil::WakeConfig { coarse: [16, 8], factor: 4, radius: 14.0, reference_substeps: 1, ..Default::default() };
+        let data = sil::DataConfig {
+            train_re: vec![200.0, 800.0],
+            test_re: vec![400.0],
+            warmup: 10,
+            train_frames: 12,
+            test_frames: 9,
+        };
+        (wake, data, 10, 8, 3)
+    } else {
+        let data = sil::DataConfig { warmup: 100, train_frames: 200, test_frames: 129, ..Default::default() };
+        (sil::WakeConfig::default(), data, 2000, 128, 30)
+    };
+    let train = sil::TrainConfig {
+        corrector: net,
+        batch: 2,
+        lr: 1e-3,
+        progress: false,
+        ..sil::TrainConfig::new(sil::Variant::Sol { m: 8 }, iterations, 0)
+    };
+    SilTimeVsError { wake, data, train, steps, rounds }
+}
+
+/// What a cached corrector was trained with (the weights are reused only when all of it matches).
+#[derive(serde::Serialize, serde::Deserialize, PartialEq)]
+struct CachedCorrector {
+    wake: sil::WakeConfig,
+    data: sil::DataConfig,
+    train: sil::TrainConfig,
+    norm: sil::Normalisation,
+    seconds: f64,
+}
+
+/// The SOL-8 corrector of `setup`: loaded from `dir` when a run with the same settings saved it,
+/// trained (and saved) otherwise. Returns it with the training seconds and whether it was cached.
+fn sil_corrector(setup: &SilTimeVsError, dir: &std::path::Path) -> TaskResult<(sil::Corrector, f64, bool)> {
+    let stem = dir.join(format!("sil_sol8_{}x{}_seed{}", setup.wake.coarse[0], setup.wake.coarse[1], setup.train.seed));
+    let (weights, meta) = (stem.with_extension("safetensors"), stem.with_extension("json"));
+    if let Ok(text) = std::fs::read_to_string(&meta) {
+        if let Ok(c) = serde_json::from_str::<CachedCorrector>(&text) {
+            if c.wake == setup.wake && c.data == setup.data && c.train == setup.train && weights.is_file() {
+                let mut net = sil::Corrector::new(c.train.corrector, c.norm, DType::F32, c.train.seed)?;
+                net.load(&weights)?;
+                return Ok((net, c.seconds, true));
+            }
+        }
+    }
+    let t = Instant::now();
+    let data = sil::generate(&setup.wake, &sil::DataConfig { test_re: vec![], ..setup.data.clone() }, DType::F32)?;
+    eprintln!("sil_time_vs_error: training data {:.0} s", t.elapsed().as_secs_f64());
+    let trained = sil::train(&data, &setup.train)?;
+    eprintln!("sil_time_vs_error: SOL-8 trained {:.0} s", trained.seconds);
+    trained.corrector.save(&weights)?;
+    let c = CachedCorrector {
+        wake: setup.wake.clone(),
+        data: setup.data.clone(),
+        train: setup.train.clone(),
+        norm: *trained.corrector.normalisation(),
+        seconds: trained.seconds,
+    };
+    std::fs::write(&meta, serde_json::to_string_pretty(&c)?)?;
+    Ok((trained.corrector, trained.seconds, false))
+}
+
+/// One held-out reference run kept at two resolutions: `fine` holds the reference's own state at
+/// the first recorded frame, `half` the frames face-averaged to 2x the source grid, `coarse` to
+/// the source grid (the same `T r_t` as [`sil::reference_run`], averaged in two halvings).
+struct HeldOut {
+    fine0: Tensor,
+    half: Tensor,
+    coarse: sil::ReferenceSim,
+}
+
+fn held_out_run(wake: &sil::WakeConfig, re: f64, warmup: usize, frames: usize) -> TaskResult<HeldOut> {
+    let fluid = wake.reference_stepper(re)?;
+    let mut s = wake.initial_state(&fluid, wake.reference_grid()?, DType::F32)?;
+    let (mut half, mut fine0) = (Vec::with_capacity(frames), None);
+    for t in 0..warmup + frames {
+        if t >= warmup {
+            fine0.get_or_insert_with(|| s.velocity.values().clone());
+            half.push(sil::downsample_mac(s.velocity.values(), wake.factor / 2)?);
+        }
+        for _ in 0..wake.reference_substeps {
+            s = fluid.step(&s, None)?;
+        }
+    }
+    let half = Tensor::cat(&half, 0)?;
+    let coarse = sil::downsample_mac(&half, 2)?;
+    let fine0 = fine0.ok_or("no frames recorded")?;
+    Ok(HeldOut { fine0, half, coarse: sil::ReferenceSim { re, frames: coarse, source: None } })
+}
+
+/// Median of `v` (sorted copy).
+fn median(v: &[f64]) -> f64 {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Time against error for Solver-in-the-Loop on held-out Re.
+///
+/// Bar, written before measuring: **corrected 1x reaches MAE <= source 2x's at lower time per
+/// step** (velocity MAE against the 4x reference face-averaged to the source grid, mean over the
+/// held-out Re and the steps; time per frame of simulated time dt = 1, batch 1, median of
+/// interleaved rounds).
+///
+/// Rows: the source solver at 1x (64 x 32), the SOL-8-corrected source at 1x, the source at 2x
+/// (128 x 64) and 4x (256 x 128) with the source's time step (its states face-averaged to the
+/// source grid), and the reference itself (256 x 128, 2 sub-steps per frame; no error: it is the
+/// target). The 2x and 4x sources start from the reference's first frame at their resolution.
+/// The corrector is the acceptance test's SOL-8 (same data, settings and seed), trained on the
+/// first run and cached in `target/pbdl/bench/sol/` (delete the files there to retrain).
+fn bench_sil_time_vs_error(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    let setup = sil_time_vs_error_setup(ctx.quick);
+    let wake = &setup.wake;
+    let [nx, ny] = wake.coarse;
+    let wake2 = sil::WakeConfig { coarse: [2 * nx, 2 * ny], factor: wake.factor / 2, ..wake.clone() };
+    let wake4 = sil::WakeConfig { coarse: [wake.factor * nx, wake.factor * ny], factor: 2, ..wake.clone() };
+    if wake.factor != 4 {
+        return Err("the bench compares 1x, 2x and 4x grids: use a 4x reference".into());
+    }
+    let (corrector, train_seconds, cached) = sil_corrector(&setup, &ctx.out_dir)?;
+    let steps = setup.steps;
+    // name, size, MAE per held-out Re, seconds per frame per round
+    let names = ["source_1x", "sol8_corrected_1x", "source_2x_dt1", "source_4x_dt1", "reference_4x"];
+    let mut mae: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
+    let mut times: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
+    let mut rollout_wall = vec![0.0; names.len()];
+    let t_ref = Instant::now();
+    let mut res = Vec::new();
+    for &re in &setup.data.test_re {
+        let held = held_out_run(wake, re, setup.data.warmup, setup.data.test_frames)?;
+        let (src1, src2, src4) = (wake.source(re)?, wake2.source(re)?, wake4.source(re)?);
+        let reference = wake.reference_stepper(re)?;
+        let start1 = held.coarse.frames.narrow(0, 0, 1)?;
+        let start2 = held.half.narrow(0, 0, 1)?;
+        let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
+        let timed = |f: &mut dyn FnMut() -> TaskResult<Vec<Tensor>>| -> TaskResult<(Vec<Tensor>, f64)> {
+            let t = Instant::now();
+            let s = f()?;
+            Ok((s, t.elapsed().as_secs_f64() / steps as f64))
+        };
+        let (s1, w1) = timed(&mut || Ok(sil::rollout(&src1, &start1, steps, None)?))?;
+        let (c1, wc) = timed(&mut || Ok(sil::rollout(&src1, &start1, steps, Some(&corrector))?))?;
+        let (s2, w2) = timed(&mut || Ok(sil::rollout(&src2, &start2, steps, None)?))?;
+        let (s4, w4) = timed(&mut || Ok(sil::rollout(&src4, &held.fine0, steps, None)?))?;
+        let down = |states: &[Tensor], f: usize| -> TaskResult<Vec<Tensor>> {
+            states.iter().map(|s| Ok(sil::downsample_mac(s, f)?)).collect()
+        };
+        let per_method = [s1, c1.clone(), down(&s2, 2)?, down(&s4, wake.factor)?];
+        for (k, states) in per_method.iter().enumerate() {
+            mae[k].push(mean(sil::mae_per_step(states, &held.coarse, 0)?));
+        }
+        for (k, w) in [w1, wc, w2, w4].into_iter().enumerate() {
+            rollout_wall[k] += w / setup.data.test_re.len() as f64;
+        }
+        // Interleaved timing of one frame each, from the states halfway through the rollouts.
+        let mid = steps / 2;
+        let fine = fluid_state(&s4[mid], wake4.coarse_grid()?, wake.boundaries()?)?;
+        for _ in 0..setup.rounds {
+            let mut time = |k: usize, f: &mut dyn FnMut() -> TaskResult<()>| -> TaskResult<()> {
+                let t = Instant::now();
+                f()?;
+                times[k].push(t.elapsed().as_secs_f64());
+                Ok(())
+            };
+            time(0, &mut || {
+                std::hint::black_box(src1.step(&per_method[0][mid])?);
+                Ok(())
+            })?;
+            time(1, &mut || {
+                std::hint::black_box(corrector.apply(&src1.step(&c1[mid])?, re)?.detach());
+                Ok(())
+            })?;
+            time(2, &mut || {
+                std::hint::black_box(src2.step(&s2[mid])?);
+                Ok(())
+            })?;
+            time(3, &mut || {
+                std::hint::black_box(src4.step(&s4[mid])?);
+                Ok(())
+            })?;
+            time(4, &mut || {
+                let mut s = fine.clone();
+                for _ in 0..wake.reference_substeps {
+                    s = reference.step(&s, None)?;
+                }
+                std::hint::black_box(s);
+                Ok(())
+            })?;
+        }
+        res.push(re);
+        eprintln!(
+            "sil_time_vs_error: Re {re:.1}: MAE source 1x {:.4}, corrected {:.4}, source 2x {:.4}, source 4x {:.4}",
+            mae[0].last().unwrap_or(&f64::NAN),
+            mae[1].last().unwrap_or(&f64::NAN),
+            mae[2].last().unwrap_or(&f64::NAN),
+            mae[3].last().unwrap_or(&f64::NAN)
+        );
+    }
+    let eval_seconds = t_ref.elapsed().as_secs_f64();
+    let avg = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let err: Vec<Option<f64>> = (0..names.len()).map(|k| (k < 4).then(|| avg(&mae[k]))).collect();
+    let secs: Vec<f64> = times.iter().map(|t| median(t)).collect();
+    let sizes = [
+        format!("{nx}x{ny}"),
+        format!("{nx}x{ny}"),
+        format!("{}x{}", 2 * nx, 2 * ny),
+        format!("{}x{}", 4 * nx, 4 * ny),
+        format!("{}x{}", 4 * nx, 4 * ny),
+    ];
+    let error_kind = format!("velocity_mae_vs_4x_reference_{steps}_steps_{}_held_out_re", res.len());
+    let rows: Vec<BenchRow> = (0..names.len())
+        .map(|k| BenchRow {
+            case: "sil_wake_held_out_re".into(),
+            method: format!("pbdl_{}", names[k]),
+            size: sizes[k].clone(),
+            seconds: secs[k],
+            unit: "frame".into(),
+            error: err[k],
+            error_kind: if err[k].is_some() { error_kind.clone() } else { String::new() },
+            peer: false,
+            threads: ctx.threads,
+        })
+        .collect();
+    let (cor_mae, src2_mae) = (err[1].unwrap_or(f64::NAN), err[2].unwrap_or(f64::NAN));
+    let met = cor_mae <= src2_mae && secs[1] < secs[2];
+    let verdict = format!(
+        "BAR (set before measuring): corrected 1x reaches MAE <= source 2x's at lower time per step: {} \
+         (MAE {cor_mae:.4} vs {src2_mae:.4}; {:.2} ms vs {:.2} ms per frame, ratio {:.2})",
+        if met { "MET" } else { "NOT MET" },
+        1e3 * secs[1],
+        1e3 * secs[2],
+        secs[1] / secs[2]
+    );
+    let cheaper_than_fine: Vec<String> = (2..4)
+        .map(|k| {
+            let lower_err = cor_mae <= err[k].unwrap_or(f64::NAN);
+            format!(
+                "{}: corrected is {:.2}x its time per frame at {} error",
+                names[k],
+                secs[1] / secs[k],
+                if lower_err { "equal or lower" } else { "higher" }
+            )
+        })
+        .collect();
+    let mut md = format!(
+        "Solver-in-the-Loop, time against error on held-out Re {res:?} ({steps} steps from the first recorded frame, \
+         {} warm-up frames). Corrector: SOL-8, {} parameters, {} updates ({}: {train_seconds:.0} s). Time per frame \
+         (dt = 1), batch 1, median of {} interleaved rounds per Re on {} threads; evaluation {eval_seconds:.0} s.\n\n\
+         | method | grid | MAE vs reference | ms per frame (median) | ms per frame (rollout wall) |\n|---|---|---:|---:|---:|\n",
+        setup.data.warmup,
+        corrector.parameters(),
+        setup.train.iterations,
+        if cached { "cached weights, trained" } else { "trained now" },
+        setup.rounds,
+        ctx.threads,
+    );
+    for k in 0..names.len() {
+        md.push_str(&format!(
+            "| {} | {} | {} | {:.2} | {} |\n",
+            names[k],
+            sizes[k],
+            err[k].map_or("(target)".into(), |e| format!("{e:.4}")),
+            1e3 * secs[k],
+            if k < 4 { format!("{:.2}", 1e3 * rollout_wall[k]) } else { "-".into() }
+        ));
+    }
+    md.push_str("\nPer held-out Re, MAE (source 1x / corrected 1x / source 2x / source 4x):\n\n");
+    for (i, re) in res.iter().enumerate() {
+        md.push_str(&format!(
+            "* Re {re:.1}: {:.4} / {:.4} / {:.4} / {:.4}\n",
+            mae[0][i], mae[1][i], mae[2][i], mae[3][i]
+        ));
+    }
+    md.push_str(&format!("\n{verdict}\n\n{}\n", cheaper_than_fine.join("\n\n")));
+    std::fs::write(ctx.out_dir.join("sil_time_vs_error.md"), &md)?;
+    eprintln!("{md}");
+    Ok(rows)
+}
+
+/// A fine MAC state as the reference solver's input.
+fn fluid_state(values: &Tensor, grid: pbdl_grid::Grid, bc: pbdl_grid::Boundaries) -> TaskResult<pbdl_grid::FluidState> {
+    Ok(pbdl_grid::FluidState { velocity: pbdl_grid::MacField::new(values.clone(), grid, bc)?, density: None })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -381,6 +699,27 @@ mod tests {
         let checks = stress_sil_long_rollout(&ctx).unwrap();
         assert_eq!(checks.len(), 2);
         assert!(checks.iter().all(|c| c.passed), "{checks:?}");
+    }
+
+    /// The quick time-against-error bench (16 x 8 wake, 10 SOL-8 updates) runs end to end: five
+    /// rows, errors finite (none for the reference), times positive; the second run reuses the
+    /// cached corrector and gets the same errors.
+    #[test]
+    fn quick_sil_time_vs_error_bench_runs_and_caches() {
+        let dir = tempfile::tempdir().unwrap();
+        let ctx = TaskContext { out_dir: dir.path().to_path_buf(), quick: true, threads: 1 };
+        let rows = bench_sil_time_vs_error(&ctx).unwrap();
+        assert_eq!(rows.len(), 5);
+        assert!(rows.iter().all(|r| r.seconds > 0.0), "{rows:?}");
+        assert!(rows[..4].iter().all(|r| r.error.is_some_and(f64::is_finite)), "{rows:?}");
+        assert!(rows[4].error.is_none());
+        assert!(dir.path().join("sil_sol8_16x8_seed0.safetensors").is_file());
+        let md = std::fs::read_to_string(dir.path().join("sil_time_vs_error.md")).unwrap();
+        assert!(md.contains("BAR (set before measuring)"), "{md}");
+        let again = bench_sil_time_vs_error(&ctx).unwrap();
+        let errs = |r: &[BenchRow]| r.iter().map(|r| r.error).collect::<Vec<_>>();
+        assert_eq!(errs(&rows), errs(&again));
+        assert!(std::fs::read_to_string(dir.path().join("sil_time_vs_error.md")).unwrap().contains("cached"));
     }
 
     /// Full-size tour (release, about a minute): prints the markdown.
