@@ -13,11 +13,13 @@
 //! |---|---|
 //! | [`control`] | PDE control (Holl et al. 2020) of forced 1D Burgers: observation predictors + CFE ([`control::Controller`]), supervised and end-to-end training, the direct-optimisation baseline |
 //! | [`sil`] | Solver-in-the-Loop (Um et al. 2020): cylinder-wake source/reference data ([`sil::generate`]), the correction ResNet ([`sil::Corrector`]), PRE / NON / SOL-m training ([`sil::train()`]), corrected rollouts and MAE ([`sil::evaluate`]) |
+//! | [`smoke_control`] | PDE control (Holl et al. 2020) of 2D incompressible smoke shape transitions through pbdl-grid's fluid operators: seeded shape pairs, observation predictors + CFE ([`smoke_control::SmokeController`]), supervised (on optimised trajectories) and end-to-end training, the direct-optimisation baseline |
 //! | [`error`] | [`Error`], [`Result`] |
 #![warn(missing_docs)]
 
 pub mod control;
 pub mod error;
 pub mod sil;
+pub mod smoke_control;
 
 pub use error::{Error, Result};
