@@ -1,4 +1,5 @@
-//! `cargo xtask sol train|eval` (Solver-in-the-Loop, Um et al. 2020, on the cylinder wake) and
+//! `cargo xtask sol train|eval` (Solver-in-the-Loop, Um et al. 2020, on the cylinder wake, or
+//! with `--scene plume` on the buoyancy-driven plume) and
 //! `cargo xtask control train|eval` (PDE control of forced 1D Burgers, Holl et al. 2020).
 //!
 //! Training runs are run directories of pbdl-sol's resumable trainers
@@ -18,7 +19,9 @@ use pbdl_sol::control::{
     optimize_forces, pretrain_supervised_resumable, scene, train_end_to_end_resumable, BurgersControlConfig,
     ControlScore, Controller, ConvNetConfig, DirectOptimConfig, ForcedBurgers, RunDir,
 };
-use pbdl_sol::sil::{self, CorrectorConfig, DataConfig, ReferenceSet, ReferenceSim, Variant, WakeConfig};
+use pbdl_sol::sil::{
+    self, CorrectorConfig, DataConfig, PlumeConfig, ReferenceSet, ReferenceSim, SilScene, Variant, WakeConfig,
+};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -26,12 +29,14 @@ use std::time::Instant;
 /// `cargo xtask sol ...`.
 #[derive(clap::Subcommand)]
 pub enum SolCommand {
-    /// Train a corrector (PRE, NON or SOL-m) on the cylinder wake into a run directory; the
+    /// Train a corrector (PRE, NON or SOL-m) on the cylinder wake (or, with `--scene plume`,
+    /// the buoyancy-driven plume) into a run directory; the
     /// reference data is generated once and cached in it (`DIR/data/`). An existing run
     /// directory resumes.
     Train(SolTrainArgs),
-    /// Velocity MAE per step on the held-out Reynolds numbers for the source solver and each
-    /// trained run: a markdown table and JSON (mean MAE over three step ranges) and a PNG plot.
+    /// Velocity MAE per step on the held-out Reynolds numbers (buoyancy factors for a plume run;
+    /// its density MAE too) for the source solver and each trained run: a markdown table and
+    /// JSON (mean MAE over three step ranges) and a PNG plot.
     Eval(SolEvalArgs),
 }
 
@@ -57,6 +62,10 @@ pub struct SolTrainArgs {
     /// Tiny sizes (a 16 x 8 wake, 2 training Re, a width-4 corrector): seconds, for tests.
     #[arg(long)]
     pub quick: bool,
+    /// The scene: `wake` (the cylinder wake, varying Re) or `plume` (a buoyant plume in a closed
+    /// box, varying the buoyancy factor; state u, v, density).
+    #[arg(long, default_value = "wake")]
+    pub scene: String,
 }
 
 /// Arguments of `sol eval`.
@@ -182,6 +191,7 @@ fn require_dir(dir: &Path, what: &str) -> anyhow::Result<()> {
 #[serde(default, deny_unknown_fields)]
 struct SolFile {
     wake: Option<WakeConfig>,
+    plume: Option<PlumeConfig>,
     data: Option<DataConfig>,
     corrector: Option<CorrectorConfig>,
     lr: Option<f64>,
@@ -191,11 +201,22 @@ struct SolFile {
     checkpoint_every: Option<u64>,
 }
 
-/// The scene and data of a `sol train` run.
+/// The scene and data of a `sol train` run: the plume when `plume` is set (then `wake` is
+/// unused), the wake otherwise.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 struct SolData {
     wake: WakeConfig,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    plume: Option<PlumeConfig>,
     data: DataConfig,
+}
+
+fn parse_scene(s: &str) -> anyhow::Result<bool> {
+    match s.to_ascii_lowercase().as_str() {
+        "wake" => Ok(false),
+        "plume" => Ok(true),
+        _ => anyhow::bail!("unknown --scene `{s}`: use wake or plume"),
+    }
 }
 
 fn parse_variant(s: &str) -> anyhow::Result<Variant> {
@@ -215,8 +236,11 @@ fn parse_variant(s: &str) -> anyhow::Result<Variant> {
 /// Defaults: the README's acceptance recipe (paper scene and Re split, 200 training frames
 /// after 100 warm-up, 129 held-out frames; a width-16, 2-block corrector whose output starts
 /// at zero, Adam 1e-3, batch 2, 2000 updates). Quick: a 16 x 8 wake at 2x reference.
+/// With `--scene plume`: the plume of [`PlumeConfig::default`] and [`PlumeConfig::data`] (quick:
+/// an 8 x 12 plume at 2x reference, buoyancy 0.03 and 0.1, held out 0.05), same training.
 fn sol_settings(args: &SolTrainArgs, variant: Variant) -> anyhow::Result<(SolData, sil::TrainConfig)> {
-    let (wake, data, corrector, iterations) = if args.quick {
+    let plume_scene = parse_scene(&args.scene)?;
+    let (wake, mut data, corrector, iterations) = if args.quick {
         (
             WakeConfig { coarse: [16, 8], factor: 2, radius: 14.0, reference_substeps: 1, ..Default::default() },
             DataConfig {
@@ -238,7 +262,29 @@ fn sol_settings(args: &SolTrainArgs, variant: Variant) -> anyhow::Result<(SolDat
         )
     };
     let file: SolFile = args.config.as_deref().map(read_config).transpose()?.unwrap_or_default();
-    let d = roundtrip(&SolData { wake: file.wake.unwrap_or(wake), data: file.data.unwrap_or(data) })?;
+    let plume = match (plume_scene, args.quick) {
+        (false, _) => None,
+        (true, true) => {
+            data = DataConfig { train_re: vec![0.03, 0.1], test_re: vec![0.05], ..data };
+            Some(PlumeConfig {
+                coarse: [8, 12],
+                factor: 2,
+                extent: [16.0, 24.0],
+                inflow_lo: [6.0, 2.0],
+                inflow_hi: [10.0, 4.0],
+                obstacle: Some(pbdl_grid::Obstacle::Box { lo: [4.0, 12.0], hi: [8.0, 14.0] }),
+                reference_substeps: 1,
+                ..Default::default()
+            })
+        }
+        (true, false) => {
+            data = PlumeConfig::data();
+            Some(PlumeConfig::default())
+        }
+    };
+    ensure!(plume_scene || file.plume.is_none(), "--config sets `plume`: add --scene plume");
+    let plume = plume.map(|p| file.plume.clone().unwrap_or(p));
+    let d = roundtrip(&SolData { wake: file.wake.unwrap_or(wake), plume, data: file.data.unwrap_or(data) })?;
     let base = sil::TrainConfig::new(variant, args.iterations.or(file.iterations).unwrap_or(iterations), args.seed);
     let cfg = sil::TrainConfig {
         corrector: file.corrector.unwrap_or(corrector),
@@ -257,7 +303,7 @@ fn data_path(run: &Path) -> PathBuf {
     run.join("data").join("reference")
 }
 
-fn save_data(run: &Path, settings: &SolData, data: &ReferenceSet) -> anyhow::Result<()> {
+fn save_data<S>(run: &Path, settings: &SolData, data: &ReferenceSet<S>) -> anyhow::Result<()> {
     let mut tensors: Vec<(String, Tensor)> = Vec::new();
     for (k, r) in data.train.iter().enumerate() {
         tensors.push((format!("train/{k}/frames"), r.frames.clone()));
@@ -299,26 +345,34 @@ fn load_data(run: &Path) -> anyhow::Result<Option<(SolData, ReferenceSet)>> {
     Ok(Some((settings, set)))
 }
 
-fn sol_train(args: SolTrainArgs) -> anyhow::Result<()> {
-    let variant = parse_variant(&args.variant)?;
-    let (settings, cfg) = sol_settings(&args, variant)?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating --out {}", args.out.display()))?;
+/// The simulations of `set` with the scene `scene`.
+fn with_scene<S: Clone>(set: ReferenceSet, scene: &S) -> ReferenceSet<S> {
+    ReferenceSet { wake: scene.clone(), train: set.train, test: set.test }
+}
+
+/// Generates (or reads the cached) data of `scene` and trains into `args.out`.
+fn train_scene<S: SilScene>(
+    args: &SolTrainArgs,
+    settings: &SolData,
+    cfg: &sil::TrainConfig,
+    scene: &S,
+) -> anyhow::Result<sil::Trained> {
     let t0 = Instant::now();
     let data = match load_data(&args.out)? {
         Some((cached, data)) => {
             ensure!(
-                cached == settings,
+                &cached == settings,
                 "{} holds reference data of other settings ({}), not of this call's ({}); use the run's settings or another --out",
                 args.out.display(),
                 serde_json::to_string(&cached)?,
-                serde_json::to_string(&settings)?
+                serde_json::to_string(settings)?
             );
             println!("reference data: cached in {}", data_path(&args.out).display());
-            data
+            with_scene(data, scene)
         }
         None => {
-            let data = sil::generate(&settings.wake, &settings.data, DType::F32)?;
-            save_data(&args.out, &settings, &data)?;
+            let data = sil::generate(scene, &settings.data, DType::F32)?;
+            save_data(&args.out, settings, &data)?;
             println!(
                 "reference data: {} training and {} held-out simulations in {:.1} s",
                 data.train.len(),
@@ -331,7 +385,17 @@ fn sol_train(args: SolTrainArgs) -> anyhow::Result<()> {
     if let Some(ck) = latest_checkpoint(&args.out)? {
         println!("resuming {} from {}", args.out.display(), ck.display());
     }
-    let trained = sil::train_resumable(&data, &cfg, &args.out)?;
+    Ok(sil::train_resumable(&data, cfg, &args.out)?)
+}
+
+fn sol_train(args: SolTrainArgs) -> anyhow::Result<()> {
+    let variant = parse_variant(&args.variant)?;
+    let (settings, cfg) = sol_settings(&args, variant)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating --out {}", args.out.display()))?;
+    let trained = match settings.plume.clone() {
+        Some(plume) => train_scene(&args, &settings, &cfg, &plume)?,
+        None => train_scene(&args, &settings, &cfg, &settings.wake)?,
+    };
     let n = trained.losses.len();
     let tail = trained.losses[n - n.min(100)..].iter().sum::<f64>() / n.clamp(1, 100) as f64;
     let summary = serde_json::json!({
@@ -370,8 +434,11 @@ struct MaeRow {
     mean_mae: Vec<f64>,
     /// Mean MAE of the held-out simulations after each step.
     mae_per_step: Vec<f64>,
-    /// `(Re, MAE over all steps)` per held-out simulation.
+    /// `(Re, MAE over all steps)` per held-out simulation (the buoyancy factor for a plume).
     per_re: Vec<(f64, f64)>,
+    /// Plume runs: the density's mean MAE over each step range (absent for the wake).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    density_mean_mae: Vec<f64>,
 }
 
 fn sol_eval(args: SolEvalArgs) -> anyhow::Result<()> {
@@ -402,11 +469,22 @@ fn sol_eval(args: SolEvalArgs) -> anyhow::Result<()> {
         name,
         run,
         mean_mae: ranges.iter().map(|&(a, b)| ev.mean_over(a, b)).collect(),
+        density_mean_mae: if ev.scalar_mae_per_step.is_empty() {
+            Vec::new()
+        } else {
+            ranges.iter().map(|&(a, b)| ev.scalar_mean_over(a, b)).collect()
+        },
         mae_per_step: ev.mae_per_step,
         per_re: ev.per_sim,
     };
+    let evaluate = |c: Option<&sil::Corrector>| -> anyhow::Result<sil::Evaluation> {
+        Ok(match &settings.plume {
+            Some(p) => sil::evaluate(p, &data.test, n, c)?,
+            None => sil::evaluate(&settings.wake, &data.test, n, c)?,
+        })
+    };
     let t0 = Instant::now();
-    rows.push(row("source".into(), None, sil::evaluate(&settings.wake, &data.test, n, None)?));
+    rows.push(row("source".into(), None, evaluate(None)?));
     for run in &args.runs {
         if run != first {
             let other = load_data(run)?.map(|(s, _)| s);
@@ -421,24 +499,30 @@ fn sol_eval(args: SolEvalArgs) -> anyhow::Result<()> {
         let info = pbdl_core::io::read_checkpoint_info(latest_checkpoint(run)?.unwrap_or_default())?;
         let variant: Variant = serde_json::from_value(info.config["train"]["variant"].clone())?;
         let name = format!("{} (seed {}, {step} updates)", variant.name(), info.seed.unwrap_or(0));
-        let ev = sil::evaluate(&settings.wake, &data.test, n, Some(&corrector))?;
+        let ev = evaluate(Some(&corrector))?;
         rows.push(row(name, Some(run.clone()), ev));
     }
     for r in &rows {
         ensure!(r.mean_mae.iter().all(|x| x.is_finite()), "{}: non-finite MAE {:?}", r.name, r.mean_mae);
     }
     let res: Vec<f64> = data.test.iter().map(|r| r.re).collect();
+    let (param, coarse, factor) = match &settings.plume {
+        Some(p) => ("buoyancy", p.coarse, p.factor),
+        None => ("Re", settings.wake.coarse, settings.wake.factor),
+    };
+    let mut columns = labels.clone();
+    if settings.plume.is_some() {
+        columns.extend(labels.iter().map(|l| format!("density {l}")));
+    }
     let mut md = format!(
-        "# Solver-in-the-Loop: velocity MAE on held-out Re {res:?}, {n} steps from frame 0\n\n\
-         Source {:?} cells, reference {}x finer; mean over the held-out simulations of the MAE per step, averaged over each step range.\n\n\
+        "# Solver-in-the-Loop: velocity MAE on held-out {param} {res:?}, {n} steps from frame 0\n\n\
+         Source {coarse:?} cells, reference {factor}x finer; mean over the held-out simulations of the MAE per step, averaged over each step range.\n\n\
          | | {} |\n|---|{}\n",
-        settings.wake.coarse,
-        settings.wake.factor,
-        labels.join(" | "),
-        "---:|".repeat(labels.len())
+        columns.join(" | "),
+        "---:|".repeat(columns.len())
     );
     for r in &rows {
-        let cells: Vec<String> = r.mean_mae.iter().map(|x| format!("{x:.4}")).collect();
+        let cells: Vec<String> = r.mean_mae.iter().chain(&r.density_mean_mae).map(|x| format!("{x:.4}")).collect();
         md.push_str(&format!("| {} | {} |\n", r.name, cells.join(" | ")));
     }
     let png = with_ext(&args.out, "png");
@@ -447,7 +531,7 @@ fn sol_eval(args: SolEvalArgs) -> anyhow::Result<()> {
         .map(|r| Series::new(r.name.clone(), (1..=n).map(|s| s as f64).collect(), r.mae_per_step.clone()))
         .collect();
     let style = PlotStyle {
-        title: format!("velocity MAE vs step, held-out Re {res:?}"),
+        title: format!("velocity MAE vs step, held-out {param} {res:?}"),
         x_label: "step".into(),
         y_label: "MAE".into(),
         ..Default::default()

@@ -17,11 +17,18 @@
 //!
 //! | file | gives you |
 //! |---|---|
-//! | [`scene`] | [`WakeConfig`]: the cylinder wake, source and reference solvers ([`SourceSolver`]) |
-//! | [`data`] | [`downsample_mac`] (MAC face average), [`DataConfig`] (training / held-out Re), [`generate`] reference sets, [`source_trajectory`] |
-//! | [`net`] | [`Corrector`] (the paper's ResNet, [`CorrectorConfig`], [`Normalisation`]) |
+//! | [`scene`] | [`SilScene`] (what the rest is generic over), [`WakeConfig`]: the cylinder wake, source and reference solvers ([`SourceSolver`]) |
+//! | [`plume`] | [`PlumeConfig`]: the buoyancy-driven flow (a plume rising in a closed box; state `u, v, density`; the buoyancy factor varies) |
+//! | [`data`] | [`downsample_mac`] (MAC face average), [`downsample_cells`] (cell average), [`DataConfig`] (training / held-out parameters), [`generate`] reference sets, [`source_trajectory`] |
+//! | [`net`] | [`Corrector`] (the paper's ResNet, [`CorrectorConfig`], [`Normalisation`], [`scalar_sigma`]) |
 //! | [`train`](mod@train) | [`TrainConfig`], [`Variant`], [`train()`], [`train_resumable`] (a crash-safe, exactly resumable run directory), [`load_trained`], [`unrolled_loss`], [`training_inputs`] |
-//! | [`eval`] | [`rollout`], [`evaluate`] (MAE per step vs the reference) |
+//! | [`eval`] | [`rollout`], [`evaluate`] (MAE per step vs the reference; the density's too) |
+//!
+//! The scenes: the wake (the default type of [`ReferenceSet`]; parameter `Re`) and the plume
+//! ([`PlumeConfig`]; parameter the buoyancy factor, stored where the wake keeps `Re`:
+//! [`ReferenceSim::re`], [`DataConfig::train_re`]). For the plume the corrector sees and corrects
+//! the density too (a zero-mean correction: no mass is created), and the loss covers all three
+//! channels, each divided by its standard deviation over the training frames.
 //!
 //! ```no_run
 //! use pbdl_sol::sil::*;
@@ -37,14 +44,16 @@
 pub mod data;
 pub mod eval;
 pub mod net;
+pub mod plume;
 pub mod scene;
 pub mod train;
 
 pub use data::{
-    downsample_factor, downsample_mac, generate, reference_run, source_trajectory, DataConfig, ReferenceSet,
-    ReferenceSim,
+    downsample_cells, downsample_factor, downsample_mac, downsample_state, generate, reference_run, source_trajectory,
+    DataConfig, ReferenceSet, ReferenceSim,
 };
-pub use eval::{evaluate, mae_per_step, rollout, Evaluation};
-pub use net::{Corrector, CorrectorConfig, Normalisation};
-pub use scene::{SourceSolver, WakeConfig};
+pub use eval::{evaluate, mae_per_step, rollout, scalar_mae_per_step, Evaluation};
+pub use net::{scalar_sigma, Corrector, CorrectorConfig, Normalisation};
+pub use plume::PlumeConfig;
+pub use scene::{SilScene, SourceSolver, WakeConfig};
 pub use train::{load_trained, train, train_resumable, training_inputs, unrolled_loss, TrainConfig, Trained, Variant};

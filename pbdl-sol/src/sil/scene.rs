@@ -7,8 +7,93 @@
 use crate::{Error, Result};
 use candle_core::{DType, Tensor};
 use pbdl_grid::fluid::{Advection, FluidOptions};
-use pbdl_grid::{Bc, Boundaries, Fluid, FluidConfig, FluidState, Grid, MacField, Obstacle};
+use pbdl_grid::{
+    Bc, Boundaries, CenteredField, Fluid, FluidConfig, FluidState, Grid, MacField, Obstacle, ScalarBoundaries,
+};
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
+
+/// A Solver-in-the-Loop scene: the source and reference solvers of one flow, as functions of
+/// the one parameter that varies between simulations (the Reynolds number of the wake, the
+/// buoyancy factor of the plume).
+///
+/// A state on the source grid is one tensor `[B, 2 + scalars, ny, nx]`: the MAC velocity
+/// `u`, `v` followed by the scalars (cell-centred; the plume's marker density). The reference
+/// is downsampled to it by [`downsample_mac`](super::data::downsample_mac) for the velocity and
+/// [`downsample_cells`](super::data::downsample_cells) (cell average) for the scalars. The
+/// data ([`generate`](super::data::generate)), training ([`train`](super::train::train)) and
+/// evaluation ([`evaluate`](super::eval::evaluate)) are generic over it; the wake is their
+/// default.
+pub trait SilScene: Clone + std::fmt::Debug + PartialEq + Serialize + DeserializeOwned {
+    /// A short name (`"wake"`, `"plume"`).
+    fn scene_name(&self) -> &'static str;
+    /// The name of the varying parameter (`"Re"`, `"buoyancy"`).
+    fn parameter_name(&self) -> &'static str;
+    /// Checks every setting (typed [`Error::InvalidConfig`] naming the field).
+    fn check(&self) -> Result<()>;
+    /// Typed error unless `p` is a valid value of the varying parameter.
+    fn check_parameter(&self, p: f64) -> Result<()>;
+    /// Cell-centred scalar channels after the velocity (0 for the wake, 1 for the plume).
+    fn scalars(&self) -> usize;
+    /// The reference resolution divided by the source resolution.
+    fn refinement(&self) -> usize;
+    /// The source grid.
+    fn source_grid(&self) -> Result<Grid>;
+    /// The reference grid.
+    fn fine_grid(&self) -> Result<Grid>;
+    /// The source solver `P_s` at parameter `p`.
+    fn source_solver(&self, p: f64) -> Result<SourceSolver>;
+    /// The reference stepper at `p` (one call of [`Fluid::step`] is one reference sub-step).
+    fn fine_stepper(&self, p: f64) -> Result<Fluid>;
+    /// Reference sub-steps per frame.
+    fn substeps(&self) -> usize;
+    /// The density inflow rate [`Fluid::step`] needs (`None` without an inflow).
+    fn inflow_rate(&self) -> Option<f64>;
+    /// The initial state of `fluid` (either solver) on `grid`.
+    fn start(&self, fluid: &Fluid, grid: Grid, dtype: DType) -> Result<FluidState>;
+}
+
+impl SilScene for WakeConfig {
+    fn scene_name(&self) -> &'static str {
+        "wake"
+    }
+    fn parameter_name(&self) -> &'static str {
+        "Re"
+    }
+    fn check(&self) -> Result<()> {
+        self.validate()
+    }
+    fn check_parameter(&self, p: f64) -> Result<()> {
+        self.viscosity(p).map(|_| ())
+    }
+    fn scalars(&self) -> usize {
+        0
+    }
+    fn refinement(&self) -> usize {
+        self.factor
+    }
+    fn source_grid(&self) -> Result<Grid> {
+        self.coarse_grid()
+    }
+    fn fine_grid(&self) -> Result<Grid> {
+        self.reference_grid()
+    }
+    fn source_solver(&self, p: f64) -> Result<SourceSolver> {
+        self.source(p)
+    }
+    fn fine_stepper(&self, p: f64) -> Result<Fluid> {
+        self.reference_stepper(p)
+    }
+    fn substeps(&self) -> usize {
+        self.reference_substeps
+    }
+    fn inflow_rate(&self) -> Option<f64> {
+        None
+    }
+    fn start(&self, fluid: &Fluid, grid: Grid, dtype: DType) -> Result<FluidState> {
+        self.initial_state(fluid, grid, dtype)
+    }
+}
 
 /// Geometry, resolution and numerics of the wake scene; the default is the paper's layout
 /// (a 200 x 100 channel, cylinder of radius 10 at (50, 50), inflow 1, source 64 x 32 cells,
@@ -145,7 +230,14 @@ impl WakeConfig {
 
     /// [`WakeConfig::coarse_stepper`] with its grid and boundaries.
     pub fn source(&self, re: f64) -> Result<SourceSolver> {
-        Ok(SourceSolver { fluid: self.coarse_stepper(re)?, grid: self.coarse_grid()?, bc: self.boundaries()?, re })
+        Ok(SourceSolver {
+            fluid: self.coarse_stepper(re)?,
+            grid: self.coarse_grid()?,
+            bc: self.boundaries()?,
+            re,
+            density_bc: None,
+            inflow_rate: None,
+        })
     }
 
     /// The reference solver at `re` (time step `dt / reference_substeps`).
@@ -165,8 +257,9 @@ impl WakeConfig {
     }
 }
 
-/// The source solver `P_s` at one Reynolds number, with the grid and boundaries its states
-/// live on (pbdl-grid's [`Fluid`] does not expose them).
+/// The source solver `P_s` at one value of the scene's parameter, with the grid and boundaries
+/// its states live on (pbdl-grid's [`Fluid`] does not expose them). A state is
+/// `[B, 2 + scalars, ny, nx]`: the MAC velocity, then the density when the scene has one.
 pub struct SourceSolver {
     /// The stepper.
     pub fluid: Fluid,
@@ -174,8 +267,14 @@ pub struct SourceSolver {
     pub grid: Grid,
     /// Its velocity boundaries.
     pub bc: Boundaries,
-    /// The Reynolds number it was built for.
+    /// The parameter it was built for (the Reynolds number of the wake, the buoyancy factor of
+    /// the plume).
     pub re: f64,
+    /// The density's boundaries when the state carries a density (channel 2); `None` for a
+    /// velocity-only state.
+    pub density_bc: Option<ScalarBoundaries>,
+    /// The density inflow rate passed to every [`Fluid::step`] (`None` without an inflow).
+    pub inflow_rate: Option<f64>,
 }
 
 impl std::fmt::Debug for SourceSolver {
@@ -185,23 +284,45 @@ impl std::fmt::Debug for SourceSolver {
 }
 
 impl SourceSolver {
-    /// Checks that `u` is `[B, 2, ny, nx]` on this grid.
+    /// Channels of a state: 2 (velocity) plus 1 with a density.
+    pub fn channels(&self) -> usize {
+        2 + usize::from(self.density_bc.is_some())
+    }
+
+    /// Checks that `u` is `[B, channels, ny, nx]` on this grid.
     pub fn check(&self, u: &Tensor) -> Result<()> {
         let d = u.dims();
-        if d.len() != 4 || d[1] != 2 || d[2] != self.grid.ny || d[3] != self.grid.nx {
+        let c = self.channels();
+        if d.len() != 4 || d[1] != c || d[2] != self.grid.ny || d[3] != self.grid.nx {
             return Err(Error::Shape {
                 context: "SourceSolver",
-                expected: format!("[batch, 2, {}, {}] (the source grid)", self.grid.ny, self.grid.nx),
+                expected: format!("[batch, {c}, {}, {}] (the source grid)", self.grid.ny, self.grid.nx),
                 got: d.to_vec(),
             });
         }
         Ok(())
     }
 
-    /// One source step `P_s(u)` of MAC values `[B, 2, ny, nx]` (differentiable).
+    /// One source step `P_s(s)` of a state `[B, channels, ny, nx]` (differentiable with respect
+    /// to every channel: advection, buoyancy, inflow and pressure solve by their adjoints).
     pub fn step(&self, u: &Tensor) -> Result<Tensor> {
         self.check(u)?;
-        let s = FluidState { velocity: MacField::new(u.clone(), self.grid, self.bc)?, density: None };
-        Ok(self.fluid.step(&s, None)?.velocity.into_values())
+        let Some(dbc) = self.density_bc else {
+            let s = FluidState { velocity: MacField::new(u.clone(), self.grid, self.bc)?, density: None };
+            return Ok(self.fluid.step(&s, None)?.velocity.into_values());
+        };
+        let vel = u.narrow(1, 0, 2)?.contiguous()?;
+        let rho = u.narrow(1, 2, 1)?.contiguous()?;
+        let s = FluidState {
+            velocity: MacField::new(vel, self.grid, self.bc)?,
+            density: Some(CenteredField::new(rho, self.grid, dbc)?),
+        };
+        let rate = match self.inflow_rate {
+            Some(r) => Some(Tensor::new(r, u.device())?.to_dtype(u.dtype())?),
+            None => None,
+        };
+        let next = self.fluid.step(&s, rate.as_ref())?;
+        let rho = next.density.expect("a stepper with density boundaries keeps the density").into_values();
+        Ok(Tensor::cat(&[next.velocity.values(), &rho], 1)?)
     }
 }

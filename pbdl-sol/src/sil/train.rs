@@ -28,8 +28,8 @@
 //! refused ([`Error::ResumeMismatch`]). [`load_trained`] reads a run directory's corrector back.
 
 use super::data::ReferenceSet;
-use super::net::{Corrector, CorrectorConfig, Normalisation};
-use super::scene::SourceSolver;
+use super::net::{scalar_sigma, Corrector, CorrectorConfig, Normalisation};
+use super::scene::{SilScene, SourceSolver};
 use crate::control::resume::{canonical, check_resume, digest, layout, logged_losses};
 use crate::{Error, Result};
 use candle_core::{DType, Tensor};
@@ -135,7 +135,7 @@ impl TrainConfig {
     }
 
     /// Checks the settings against the data (typed [`Error::InvalidConfig`]).
-    pub fn validate(&self, data: &ReferenceSet) -> Result<()> {
+    pub fn validate<S: SilScene>(&self, data: &ReferenceSet<S>) -> Result<()> {
         const C: &str = "TrainConfig";
         if let Variant::Sol { m: 0 } = self.variant {
             return Err(Error::invalid(C, "variant.m", "unroll at least one step (m >= 1)"));
@@ -161,13 +161,14 @@ impl TrainConfig {
                 format!("m = {m} needs m + 1 frames per simulation, Re {} has {}", r.re, r.len()),
             ));
         }
-        let grid = data.wake.coarse_grid()?;
+        let grid = data.wake.source_grid()?;
+        let ch = 2 + data.wake.scalars();
         for r in data.train.iter().chain(&data.test) {
             let d = r.frames.dims();
-            if d.len() != 4 || d[1] != 2 || d[2] != grid.ny || d[3] != grid.nx {
+            if d.len() != 4 || d[1] != ch || d[2] != grid.ny || d[3] != grid.nx {
                 return Err(Error::Shape {
                     context: "TrainConfig::validate",
-                    expected: format!("frames [T, 2, {}, {}] on the source grid", grid.ny, grid.nx),
+                    expected: format!("frames [T, {ch}, {}, {}] on the source grid", grid.ny, grid.nx),
                     got: d.to_vec(),
                 });
             }
@@ -218,8 +219,9 @@ pub fn unrolled_loss(
 }
 
 fn inverse_sigma(corrector: &Corrector, like: &Tensor) -> Result<Tensor> {
-    let sigma = corrector.normalisation().sigma;
-    Ok(Tensor::new(&[1.0 / sigma[0], 1.0 / sigma[1]], like.device())?.to_dtype(like.dtype())?.reshape((1, 2, 1, 1))?)
+    let inv: Vec<f64> = corrector.channel_sigma().iter().map(|s| 1.0 / s).collect();
+    let c = inv.len();
+    Ok(Tensor::new(inv.as_slice(), like.device())?.to_dtype(like.dtype())?.reshape((1, c, 1, 1))?)
 }
 
 fn scaled_half_mse(s: &Tensor, target: &Tensor, inv: &Tensor) -> Result<Tensor> {
@@ -229,7 +231,11 @@ fn scaled_half_mse(s: &Tensor, target: &Tensor, inv: &Tensor) -> Result<Tensor> 
 /// The precomputed one-step inputs of PRE (`P_s(T r_t)`) and NON (`P_s(s^src_t) =
 /// s^src_{t+1}`), `t = 0..frames-1`, one tensor per training simulation, paired with the targets
 /// `T r_{t+1}`; `None` for SOL-m.
-fn one_step_inputs(data: &ReferenceSet, sources: &[SourceSolver], variant: Variant) -> Result<Option<Vec<Tensor>>> {
+fn one_step_inputs<S>(
+    data: &ReferenceSet<S>,
+    sources: &[SourceSolver],
+    variant: Variant,
+) -> Result<Option<Vec<Tensor>>> {
     Ok(match variant {
         Variant::Pre => Some(
             data.train
@@ -254,9 +260,9 @@ fn one_step_inputs(data: &ReferenceSet, sources: &[SourceSolver], variant: Varia
 /// The one-step training inputs of `variant` for every training simulation of `data`
 /// (`[frames - 1, 2, ny, nx]` each, input `t` paired with the target `T r_{t+1}`): PRE's
 /// `P_s(T r_t)`, NON's `P_s(s^src_t)`; `None` for SOL-m (its inputs are the reference frames).
-pub fn training_inputs(data: &ReferenceSet, variant: Variant) -> Result<Option<Vec<Tensor>>> {
+pub fn training_inputs<S: SilScene>(data: &ReferenceSet<S>, variant: Variant) -> Result<Option<Vec<Tensor>>> {
     TrainConfig::new(variant, 1, 0).validate(data)?;
-    let sources: Vec<SourceSolver> = data.train.iter().map(|r| data.wake.source(r.re)).collect::<Result<_>>()?;
+    let sources: Vec<SourceSolver> = data.train.iter().map(|r| data.wake.source_solver(r.re)).collect::<Result<_>>()?;
     one_step_inputs(data, &sources, variant)
 }
 
@@ -281,7 +287,7 @@ pub struct Trained {
 /// Trains a corrector on `data` as `config` says, in memory. The source solvers (one per
 /// training Reynolds number) are built from `data.wake`. [`train_resumable`] is the same
 /// training in a run directory.
-pub fn train(data: &ReferenceSet, config: &TrainConfig) -> Result<Trained> {
+pub fn train<S: SilScene>(data: &ReferenceSet<S>, config: &TrainConfig) -> Result<Trained> {
     fit(data, config, None)
 }
 
@@ -323,7 +329,11 @@ pub fn train(data: &ReferenceSet, config: &TrainConfig) -> Result<Trained> {
 /// assert_eq!(rest.losses, train(&data, &cfg)?.losses); // as if it never stopped
 /// # Ok::<(), pbdl_sol::Error>(())
 /// ```
-pub fn train_resumable(data: &ReferenceSet, config: &TrainConfig, run_dir: impl AsRef<Path>) -> Result<Trained> {
+pub fn train_resumable<S: SilScene>(
+    data: &ReferenceSet<S>,
+    config: &TrainConfig,
+    run_dir: impl AsRef<Path>,
+) -> Result<Trained> {
     fit(data, config, Some(run_dir.as_ref()))
 }
 
@@ -332,8 +342,8 @@ const TRAINER: &str = "pbdl_sol::sil::train_resumable";
 
 /// What a run's numbers depend on besides the number of updates: the sidecar `config` of
 /// every checkpoint of [`train_resumable`], compared on resume.
-fn run_config(
-    data: &ReferenceSet,
+fn run_config<S: SilScene>(
+    data: &ReferenceSet<S>,
     config: &TrainConfig,
     corrector: &Corrector,
     dtype: DType,
@@ -342,7 +352,7 @@ fn run_config(
     let sources = data.train.iter().filter_map(|r| r.source.as_ref());
     let norm = corrector.normalisation();
     let bits = [norm.sigma[0], norm.sigma[1], norm.re_mean, norm.re_std].map(f64::to_bits);
-    canonical(serde_json::json!({
+    let mut value = serde_json::json!({
         "trainer": TRAINER,
         "train": {
             "variant": config.variant,
@@ -363,11 +373,18 @@ fn run_config(
             "frames": data.train.iter().map(|r| r.len()).collect::<Vec<_>>(),
             "digest": digest(frames.chain(sources))?,
         },
-    }))
+    });
+    // Scenes with scalars record them (a wake run's record is as before).
+    if !corrector.scalar_sigma().is_empty() {
+        value["data"]["scene"] = serde_json::json!(data.wake.scene_name());
+        value["scalar_sigma_bits"] =
+            serde_json::json!(corrector.scalar_sigma().iter().map(|s| s.to_bits()).collect::<Vec<_>>());
+    }
+    canonical(value)
 }
 
 /// One update's random draws: the training simulation and the batch's start frames.
-fn draw(rng: &mut StdRng, data: &ReferenceSet, batch: usize, m: usize) -> (usize, Vec<u32>) {
+fn draw<S>(rng: &mut StdRng, data: &ReferenceSet<S>, batch: usize, m: usize) -> (usize, Vec<u32>) {
     let k = rng.random_range(0..data.train.len());
     let sim = &data.train[k];
     let starts = (0..batch).map(|_| rng.random_range(0..(sim.len() - m) as u32)).collect();
@@ -375,13 +392,13 @@ fn draw(rng: &mut StdRng, data: &ReferenceSet, batch: usize, m: usize) -> (usize
 }
 
 /// [`train()`] (`dir = None`) and [`train_resumable`].
-fn fit(data: &ReferenceSet, config: &TrainConfig, dir: Option<&Path>) -> Result<Trained> {
+fn fit<S: SilScene>(data: &ReferenceSet<S>, config: &TrainConfig, dir: Option<&Path>) -> Result<Trained> {
     config.validate(data)?;
     let t0 = std::time::Instant::now();
     let dtype = data.train[0].frames.dtype();
     let norm = Normalisation::from_data(data)?;
-    let corrector = Corrector::new(config.corrector, norm, dtype, config.seed)?;
-    let sources: Vec<SourceSolver> = data.train.iter().map(|r| data.wake.source(r.re)).collect::<Result<_>>()?;
+    let corrector = Corrector::with_scalars(config.corrector, norm, &scalar_sigma(data)?, dtype, config.seed)?;
+    let sources: Vec<SourceSolver> = data.train.iter().map(|r| data.wake.source_solver(r.re)).collect::<Result<_>>()?;
     // PRE and NON: the one-step inputs, computed once.
     let pre: Option<Vec<Tensor>> = one_step_inputs(data, &sources, config.variant)?;
     let m = config.variant.unroll();
@@ -477,7 +494,15 @@ pub fn load_trained(run_dir: impl AsRef<Path>) -> Result<(Corrector, u64)> {
         Some("F32") => DType::F32,
         other => return Err(bad(format!("unsupported dtype {other:?}"))),
     };
-    let corrector = Corrector::new(cfg, norm, dtype, 0)?;
+    let scalars: Vec<f64> = match info.config.get("scalar_sigma_bits") {
+        Some(v) => serde_json::from_value::<Vec<u64>>(v.clone())
+            .map_err(|e| bad(format!("unreadable scalar scales: {e}")))?
+            .into_iter()
+            .map(f64::from_bits)
+            .collect(),
+        None => Vec::new(),
+    };
+    let corrector = Corrector::with_scalars(cfg, norm, &scalars, dtype, 0)?;
     load_varmap(&path, corrector.varmap())?;
     Ok((corrector, info.step))
 }
