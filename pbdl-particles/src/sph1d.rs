@@ -14,7 +14,14 @@
 //! Pair forces are computed so that `i`'s term from `j` is bit-for-bit the negative of `j`'s
 //! from `i`; with equal masses linear momentum is then conserved to round-off.
 //!
-//! Shock tubes put fixed ghost particles (the initial left/right states) beyond both ends.
+//! Shock tubes put buffer particles (the initial left/right states, as thick as twice the kernel
+//! support) beyond both ends. Where both end states are at rest they stay fixed ghosts; where
+//! either end state moves ([`ShockTube`] with `u_L != 0` or `u_R != 0`) the buffers drift
+//! rigidly with their end state's velocity (`moving_buffers`), so the mobile particles next to
+//! each end always see the uniform state they came from: the mobile region is Lagrangian, its
+//! ends at `x_lo + u_L t` and `x_hi + u_R t`, and no spurious wave enters from the ends until a
+//! physical wave reaches a buffer (the buffers never change state, so a wave arriving there
+//! reflects as from a piston: keep `t` below the time the outermost waves reach the ends).
 //!
 //! Precision: [`Sph1d<T>`] keeps the particle state and does all per-particle arithmetic in `T`
 //! (`f64` by default, or `f32`); parameters, time and the step size stay `f64`, and sums over
@@ -120,8 +127,9 @@ impl ShockTube {
     }
 
     /// Equal-mass particles: `n` mobile ones spaced so that the densities are the left and right
-    /// states (e.g. 200 + 25 for Sod with `n = 225`), plus fixed ghosts beyond both ends; the
-    /// `f64` stepper.
+    /// states (e.g. 200 + 25 for Sod with `n = 225`), the left ones from `x_lo`, the right ones
+    /// from `x_hi`, plus ghosts beyond both ends (fixed, or moving with their end state when it
+    /// moves, see the module docs); the `f64` stepper.
     pub fn build(&self, n: usize, params: Sph1dParams) -> Result<Sph1d> {
         self.build_as::<f64>(n, params)
     }
@@ -159,8 +167,11 @@ impl ShockTube {
             x.push(self.x_lo + (k as f64 + 0.5) * dxl);
             state.push(self.left);
         }
+        // The right particles are laid out from `x_hi` inwards, so that both ends tile their
+        // ghosts/buffers exactly (with equal masses `nl dxl + nr dxr` need not equal the length
+        // when `n` does not split evenly; the mismatch is left at the discontinuity `x0`).
         for k in 0..nr {
-            x.push(self.x0 + (k as f64 + 0.5) * dxr);
+            x.push(self.x_hi - ((nr - k) as f64 - 0.5) * dxr);
             state.push(self.right);
         }
         for k in 0..gl {
@@ -178,7 +189,113 @@ impl ShockTube {
         let u = state.iter().map(|s| T::c(s.internal_energy(self.gamma))).collect();
         let h = state.iter().map(|s| T::c(params.eta * mass / s.rho)).collect();
         let m = vec![T::c(mass); n + gl + gr];
-        Sph1d::new(params, x, v, u, m, Some(h), n, Domain::bounded([T::c(lo)], [T::c(hi)]))
+        let mut sim = Sph1d::new(params, x, v, u, m, Some(h), n, Domain::bounded([T::c(lo)], [T::c(hi)]))?;
+        sim.set_moving_buffers(self.has_moving_ends())?;
+        Ok(sim)
+    }
+
+    /// Whether either end state moves (`u_L != 0` or `u_R != 0`): the buffers then drift with
+    /// their end state ([`Sph1d::set_moving_buffers`]).
+    pub fn has_moving_ends(&self) -> bool {
+        self.left.u != 0.0 || self.right.u != 0.0
+    }
+
+    /// A shock tube continued from given mobile particles (e.g. the last frame of a trajectory,
+    /// `sim particles --init`): positions `x`, velocities `v`, specific internal energies `u`,
+    /// masses `m` and optionally smoothing lengths `h` (default `η m / ρ` of the end state on
+    /// the particle's side of `x0`). Buffers of the left and right states are laid out beyond
+    /// the leftmost and rightmost particle at the spacing `m / ρ` of the end particle's mass, as
+    /// [`ShockTube::build_as`] lays them out beyond `x_lo` and `x_hi`, or, when `buffers` gives
+    /// their positions (a trajectory's `fixed_positions`, for an exact restart), there: those
+    /// left of every particle take the left state, those right of them the right state (others
+    /// are an error). They move with their end state when [`ShockTube::has_moving_ends`].
+    ///
+    /// Errors: mismatched lengths, fewer than 4 particles, and [`Sph1d::new`]'s.
+    pub fn build_from_particles_as<T: Real>(
+        &self,
+        params: Sph1dParams,
+        x: &[f64],
+        v: &[f64],
+        u: &[f64],
+        m: &[f64],
+        h: Option<&[f64]>,
+        buffers: Option<&[f64]>,
+    ) -> Result<Sph1d<T>> {
+        let params = Sph1dParams { gamma: self.gamma, ..params };
+        params.validate()?;
+        self.exact()?;
+        let n = x.len();
+        for (arg, len) in [("v", v.len()), ("u", u.len()), ("m", m.len()), ("h", h.map_or(n, <[f64]>::len))] {
+            if len != n {
+                return Err(Error::Length { op: "ShockTube::build_from_particles_as", arg, expected: n, got: len });
+            }
+        }
+        if n < 4 {
+            return Err(Error::invalid("n", format!("{n} particles; a shock tube needs at least 4")));
+        }
+        if let Some(i) = x.iter().position(|xi| !xi.is_finite()) {
+            return Err(Error::invalid("x", format!("particle {i} has position {}", x[i])));
+        }
+        if let Some(i) = m.iter().position(|&mi| !(mi > 0.0 && mi.is_finite())) {
+            return Err(Error::invalid("m", format!("particle {i} has mass {}; masses must be positive", m[i])));
+        }
+        let (il, ir) =
+            (0..n).fold((0, 0), |(a, b), i| (if x[i] < x[a] { i } else { a }, if x[i] > x[b] { i } else { b }));
+        let (dxl, dxr) = (m[il] / self.left.rho, m[ir] / self.right.rho);
+        let ghosts = (2.0 * params.kernel.support_factor() * params.eta).ceil() as usize + 2;
+        let mut xs = x.to_vec();
+        let mut vs = v.to_vec();
+        let mut us = u.to_vec();
+        let mut ms = m.to_vec();
+        let mut hs: Vec<f64> = match h {
+            Some(h) => h.to_vec(),
+            None => (0..n)
+                .map(|i| params.eta * m[i] / if x[i] < self.x0 { self.left.rho } else { self.right.rho })
+                .collect(),
+        };
+        let mut push = |xb: f64, side: GasState, mass: f64| {
+            xs.push(xb);
+            vs.push(side.u);
+            us.push(side.internal_energy(self.gamma));
+            ms.push(mass);
+            hs.push(params.eta * mass / side.rho);
+        };
+        let (mut lo, mut hi) = (x[il] - (ghosts as f64 + 2.0) * dxl, x[ir] + (ghosts as f64 + 2.0) * dxr);
+        match buffers {
+            Some(b) => {
+                for (k, &xb) in b.iter().enumerate() {
+                    if !xb.is_finite() {
+                        return Err(Error::invalid("buffers", format!("buffer {k} at {xb}")));
+                    }
+                    if xb < x[il] {
+                        push(xb, self.left, m[il]);
+                    } else if xb > x[ir] {
+                        push(xb, self.right, m[ir]);
+                    } else {
+                        return Err(Error::invalid(
+                            "buffers",
+                            format!("buffer {k} at {xb} lies among the particles ({} to {})", x[il], x[ir]),
+                        ));
+                    }
+                    lo = lo.min(xb - 2.0 * dxl);
+                    hi = hi.max(xb + 2.0 * dxr);
+                }
+            }
+            None => {
+                for (side, x_end, dx, sign, mass) in
+                    [(self.left, x[il], dxl, -1.0, m[il]), (self.right, x[ir], dxr, 1.0, m[ir])]
+                {
+                    for k in 0..ghosts {
+                        push(x_end + sign * (k as f64 + 1.0) * dx, side, mass);
+                    }
+                }
+            }
+        }
+        let c = |v: Vec<f64>| v.into_iter().map(T::c).collect::<Vec<T>>();
+        let mut sim =
+            Sph1d::new(params, c(xs), c(vs), c(us), c(ms), Some(c(hs)), n, Domain::bounded([T::c(lo)], [T::c(hi)]))?;
+        sim.set_moving_buffers(self.has_moving_ends())?;
+        Ok(sim)
     }
 }
 
@@ -223,6 +340,7 @@ pub struct Sph1d<T: Real = f64> {
     u_half: Vec<T>,
     positions: Vec<[T; 1]>,
     n_mobile: usize,
+    moving_buffers: bool,
     domain: Domain<T, 1>,
     cells: CellList<T, 1>,
     nl: NeighborList,
@@ -317,6 +435,7 @@ impl<T: Real> Sph1d<T> {
             m,
             h,
             n_mobile,
+            moving_buffers: false,
             domain,
             cells,
             nl: NeighborList::default(),
@@ -357,6 +476,26 @@ impl<T: Real> Sph1d<T> {
         self.n_mobile
     }
 
+    /// Whether the fixed particles drift with their own (constant) velocity.
+    pub fn moving_buffers(&self) -> bool {
+        self.moving_buffers
+    }
+
+    /// With `on`, the fixed particles (the first `n_mobile` are mobile) drift each step with
+    /// their own velocity, which never changes, while keeping their density, energy and
+    /// smoothing length: buffer zones of a uniform end state moving with it (what
+    /// [`ShockTube::build`] asks for when an end state moves). The bounded search domain grows
+    /// when they approach its edge. Without (the default), fixed particles never move.
+    ///
+    /// Errors: [`Error::Invalid`] for a periodic domain (it has no fixed particles to move).
+    pub fn set_moving_buffers(&mut self, on: bool) -> Result<()> {
+        if on && self.domain.periodic[0] {
+            return Err(Error::invalid("moving_buffers", "a periodic domain has no buffers"));
+        }
+        self.moving_buffers = on;
+        Ok(())
+    }
+
     /// Parameters.
     pub fn params(&self) -> &Sph1dParams {
         &self.params
@@ -364,14 +503,15 @@ impl<T: Real> Sph1d<T> {
 
     /// The terms this stepper evaluates: `summation_density_grad_h`, `pressure_force`,
     /// `energy_equation`, then `artificial_viscosity` (only when `alpha` or `beta` > 0) and
-    /// `fixed_ghosts` (only when some particles are fixed).
+    /// `fixed_ghosts` or `moving_buffers` (only when some particles are not mobile; see
+    /// [`Sph1d::set_moving_buffers`]).
     pub fn operators(&self) -> Vec<&'static str> {
         let mut ops = vec!["summation_density_grad_h", "pressure_force", "energy_equation"];
         if self.params.alpha > 0.0 || self.params.beta > 0.0 {
             ops.push("artificial_viscosity");
         }
         if self.n_mobile < self.x.len() {
-            ops.push("fixed_ghosts");
+            ops.push(if self.moving_buffers { "moving_buffers" } else { "fixed_ghosts" });
         }
         ops
     }
@@ -553,6 +693,12 @@ impl<T: Real> Sph1d<T> {
                 self.x[i] = self.domain.wrap([self.x[i]])[0];
             }
         }
+        if self.moving_buffers {
+            for i in nm..self.x.len() {
+                self.x[i] += dt_t * self.v[i];
+            }
+            self.fit_domain()?;
+        }
         // Predict velocity/energy at the end of the step for the viscous and work terms.
         self.v_half.clear();
         self.v_half.extend_from_slice(&self.v[..nm]);
@@ -573,6 +719,24 @@ impl<T: Real> Sph1d<T> {
         }
         self.time += dt;
         self.steps += 1;
+        Ok(())
+    }
+
+    /// Grows the bounded search domain when a particle comes within two search radii of its
+    /// edge (moving buffers): the new box has a margin of a quarter of the particles' extent.
+    fn fit_domain(&mut self) -> Result<()> {
+        let (lo, hi) = self.x.iter().fold((T::infinity(), -T::infinity()), |(a, b), &x| (a.fmin(x), b.fmax(x)));
+        if !(lo.is_finite() && hi.is_finite()) {
+            return Err(Error::NonFinite { what: "position", index: 0, step: self.steps });
+        }
+        let r = self.cells.radius();
+        let two = T::c(2.0);
+        if lo - two * r >= self.domain.lo[0] && hi + two * r <= self.domain.hi[0] {
+            return Ok(());
+        }
+        let margin = T::c(0.25) * (hi - lo) + two * r;
+        self.domain = Domain::bounded([lo - margin], [hi + margin]);
+        self.cells = CellList::new(self.domain, r)?;
         Ok(())
     }
 

@@ -342,14 +342,16 @@ manifest-i-of-n.json; run k is the same whatever n is, so the n jobs equal one r
 file (`cargo xtask data check DIR` checks the directory).
 
 Particles (`sim particles`): <out>/<scene>_seed<k>.npz with `positions` [T, N, D],
-`velocities` [T, N, D], `density` [T, N], `mass` [T, N] and, where there are walls or ghosts,
-`fixed_positions` [F, D], in the run's precision (f64, or f32 with `precision = \"f32\"` in the
-scene or --precision f32), and `time` [T] (always f64); <scene>_seed<k>.png (last frame) and
-.gif beside it. --init FILE.npz reads `positions` [N, D] or [T, N, D] (last frame), optional
-`velocities`, `mass`, `density` (the fluid; walls come from the scene; f32 or f64). A
-trajectory is a valid --init file (except for shock tubes, whose initial state is the Riemann
-problem itself: they refuse --init); a restart in the trajectory's precision starts from
-exactly its last frame.
+`velocities` [T, N, D], `density` [T, N], `mass` [T, N], for 1D compressible runs (shock
+tubes, periodic_1d) `pressure`, `internal_energy` and `smoothing_length` [T, N], and, where
+there are walls, ghosts or buffers, `fixed_positions` [F, D] (last frame), in the run's
+precision (f64, or f32 with `precision = \"f32\"` in the scene or --precision f32), and `time`
+[T] (always f64); <scene>_seed<k>.png (last frame) and .gif beside it. --init FILE.npz reads
+`positions` [N, D] or [T, N, D] (last frame), optional `velocities`, `mass`, `density`,
+`internal_energy` (or `pressure` with `density`), `smoothing_length` (the fluid; walls come
+from the scene; a shock tube's buffers from `fixed_positions`, else laid out beyond the end
+particles; f32 or f64). Every trajectory is a valid --init file; a restart in the
+trajectory's precision starts from exactly its last frame (its time restarts at 0).
 
 Examples:
   cargo xtask sim grid taylor_green --res 128

@@ -39,12 +39,54 @@ impl Scene {
                 ));
             }
             check_h_over_dx(name, "shock_tube.sph.eta", st.sph.eta)?;
-            if init.is_some() {
-                return Err(scene_err(name, "init", "--init is not supported for shock tubes (use periodic_1d)"));
-            }
-            let sim = st.tube().build_as::<T>(st.n, st.sph).map_err(|e| match e {
+            let tube = st.tube();
+            let built = match init {
+                None => tube.build_as::<T>(st.n, st.sph),
+                Some(init) => {
+                    init.check(1, name)?;
+                    let n = init.len();
+                    let default_mass = (st.left.rho * (st.x0 - st.x_lo) + st.right.rho * (st.x_hi - st.x0)) / n as f64;
+                    let mass = init.mass.clone().unwrap_or_else(|| vec![default_mass; n]);
+                    let v = init.velocities.clone().unwrap_or_else(|| vec![0.0; n]);
+                    let g1 = st.gamma - 1.0;
+                    let u = match (&init.internal_energy, &init.pressure, &init.density) {
+                        (Some(e), _, _) => e.clone(),
+                        (None, Some(p), Some(rho)) => p.iter().zip(rho).map(|(p, r)| p / (g1 * r)).collect(),
+                        _ => {
+                            return Err(scene_err(
+                                name,
+                                "init.internal_energy",
+                                "a shock tube starts from `internal_energy`, or `pressure` and `density`; \
+                                 the file has neither",
+                            ))
+                        }
+                    };
+                    tube.build_from_particles_as::<T>(
+                        st.sph,
+                        &init.positions,
+                        &v,
+                        &u,
+                        &mass,
+                        init.smoothing_length.as_deref(),
+                        init.fixed_positions.as_deref(),
+                    )
+                }
+            };
+            let sim = built.map_err(|e| match e {
                 Error::Invalid { field, reason } if ["eta", "alpha", "cfl", "kernel"].contains(&field) => {
                     scene_err(name, &format!("shock_tube.sph.{field}"), reason)
+                }
+                Error::Invalid { field, reason }
+                    if init.is_some() && ["x", "m", "u", "h", "buffers"].contains(&field) =>
+                {
+                    let f = match field {
+                        "x" => "init.positions",
+                        "buffers" => "init.fixed_positions",
+                        "m" => "init.mass",
+                        "u" => "init.internal_energy",
+                        _ => "init.smoothing_length",
+                    };
+                    scene_err(name, f, reason)
                 }
                 e => field_err(name, "shock_tube", e),
             })?;
@@ -259,12 +301,19 @@ fn build_periodic_1d<T: Real>(
     let u0 = p.c0 * p.c0 / (gamma * (gamma - 1.0));
     let len = p.x_hi - p.x_lo;
     let domain = Domain::periodic([T::c(p.x_lo)], [T::c(p.x_hi)]);
-    let (x, v, m) = match init {
+    let (x, v, m, e, h) = match init {
         Some(init) => {
             init.check(1, name)?;
             let n = init.len();
             let mass = init.mass.clone().unwrap_or_else(|| vec![p.rho0 * len / n as f64; n]);
-            (init.positions.clone(), init.velocities.clone().unwrap_or_else(|| vec![0.0; n]), mass)
+            let e = init.internal_energy.clone().unwrap_or_else(|| vec![u0; n]);
+            (
+                init.positions.clone(),
+                init.velocities.clone().unwrap_or_else(|| vec![0.0; n]),
+                mass,
+                e,
+                init.smoothing_length.clone(),
+            )
         }
         None => {
             // Equal masses placed by inverting the cumulative mass of ρ(x).
@@ -294,16 +343,17 @@ fn build_periodic_1d<T: Real>(
                 let frac = ((target - acc) / (rho[k] * cell)).clamp(0.0, 1.0);
                 x.push(p.x_lo + (k as f64 + frac) * cell);
             }
-            (x, vec![0.0; p.n], vec![mass; p.n])
+            (x, vec![0.0; p.n], vec![mass; p.n], vec![u0; p.n], None)
         }
     };
     let n = x.len();
-    let sim = Sph1d::new(p.sph, narrow(&x), narrow(&v), vec![T::c(u0); n], narrow(&m), None, n, domain).map_err(
-        |e| match e {
-            Error::Invalid { field: "m", reason } => scene_err(name, "init.mass", reason),
-            e => field_err(name, "periodic_1d.sph", e),
-        },
-    )?;
+    let h = h.map(|h| narrow::<T>(&h));
+    let sim = Sph1d::new(p.sph, narrow(&x), narrow(&v), narrow(&e), narrow(&m), h, n, domain).map_err(|e| match e {
+        Error::Invalid { field: "m", reason } => scene_err(name, "init.mass", reason),
+        Error::Invalid { field: "u", reason } => scene_err(name, "init.internal_energy", reason),
+        Error::Invalid { field: "h", reason } => scene_err(name, "init.smoothing_length", reason),
+        e => field_err(name, "periodic_1d.sph", e),
+    })?;
     Ok(Stepper::Sph1d(Box::new(sim)))
 }
 

@@ -14,13 +14,25 @@ pub struct InitState {
     pub velocities: Option<Vec<f64>>,
     /// Masses `[n]` (the scene's when absent).
     pub mass: Option<Vec<f64>>,
-    /// Densities `[n]` (the scene's rest state when absent; used by WCSPH).
+    /// Densities `[n]` (the scene's rest state when absent; used by WCSPH, and by shock tubes
+    /// to derive the internal energy from `pressure` when `internal_energy` is absent).
     pub density: Option<Vec<f64>>,
+    /// Pressures `[n]` (1D compressible SPH: with `density`, the internal energy when
+    /// `internal_energy` is absent).
+    pub pressure: Option<Vec<f64>>,
+    /// Specific internal energies `[n]` (1D compressible SPH).
+    pub internal_energy: Option<Vec<f64>>,
+    /// Smoothing lengths `[n]` (1D compressible SPH; the starting guess of the density solve).
+    pub smoothing_length: Option<Vec<f64>>,
+    /// Fixed particles `[F * dim]` (`fixed_positions` `[F, d]` of a trajectory: a shock tube's
+    /// ghosts or buffers at its last frame, which a shock tube restarts from).
+    pub fixed_positions: Option<Vec<f64>>,
 }
 
 impl InitState {
     /// Reads `positions` (`[n, d]` or a trajectory `[T, n, d]`: its last frame), and optional
-    /// `velocities`, `mass`, `density` (`[n]` / `[T, n]`) from `.npz` arrays, widened to `f64`
+    /// `velocities`, `mass`, `density`, `pressure`, `internal_energy`, `smoothing_length`
+    /// (`[n]` / `[T, n]`) and `fixed_positions` (`[F, d]`) from `.npz` arrays, widened to `f64`
     /// (exact for `f32` and `f64` arrays).
     pub fn from_arrays(arrays: &[(String, Tensor)]) -> Result<Self> {
         let get = |name: &str| arrays.iter().find(|(n, _)| n == name).map(|(_, t)| t);
@@ -75,6 +87,13 @@ impl InitState {
             velocities: read("velocities", 2, n * dim)?,
             mass: read("mass", 1, n)?,
             density: read("density", 1, n)?,
+            pressure: read("pressure", 1, n)?,
+            internal_energy: read("internal_energy", 1, n)?,
+            smoothing_length: read("smoothing_length", 1, n)?,
+            fixed_positions: match get("fixed_positions") {
+                Some(t) => Some(last("fixed_positions", t, 2)?.flatten_all()?.to_vec1::<f64>()?),
+                None => None,
+            },
         })
     }
 

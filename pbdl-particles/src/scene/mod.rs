@@ -11,7 +11,7 @@
 //!
 //! | built-in | what |
 //! |---|---|
-//! | `shock_tube` | [`ShockTubeScene`]: 1D grad-h SPH between two states (Sod by default), fixed ghosts |
+//! | `shock_tube` | [`ShockTubeScene`]: 1D grad-h SPH between two states (Sod by default), fixed ghosts or, when an end state moves, buffers moving with it |
 //! | `dam_break` | [`DamBreakScene`] with WCSPH: Martin & Moyce, H = 2a, wall particles |
 //! | `dam_break_iisph` | the same with incompressible IISPH |
 //! | `periodic_1d_noise` | [`Periodic1dScene`]: periodic 1D compressible SPH, Perlin-noise density (SFBC test case I style) |
@@ -143,7 +143,8 @@ impl std::fmt::Display for Precision {
     }
 }
 
-/// `[shock_tube]`: two gas states meeting at `x0`.
+/// `[shock_tube]`: two gas states meeting at `x0`; end states may move (velocities of either
+/// sign: the buffers beyond the ends move with them, see [`crate::sph1d`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ShockTubeScene {

@@ -6,9 +6,14 @@ use candle_core::{Device, Tensor};
 use pbdl_core::Real;
 use std::path::{Path, PathBuf};
 
+/// Reads an optional per-particle array of a frame.
+type OptionalArray = fn(&Frame) -> Option<&[f64]>;
+
 /// Writes `<dir>/<stem>.npz` with `positions` `[T, N, D]`, `velocities` `[T, N, D]`,
-/// `density` `[T, N]`, `mass` `[T, N]`, `time` `[T]` and `fixed_positions` `[F, D]` (walls,
-/// ghosts; absent when there are none); plus, with the `viz` feature (on by default),
+/// `density` `[T, N]`, `mass` `[T, N]`, `time` `[T]`, for 1D compressible SPH (shock tubes,
+/// periodic 1D) `pressure`, `internal_energy` (specific) and `smoothing_length` `[T, N]`, and
+/// `fixed_positions` `[F, D]` (walls, ghosts or buffers at the last frame; absent when there are
+/// none); plus, with the `viz` feature (on by default),
 /// `<stem>.png` (last frame) and `<stem>.gif` (all frames): particles coloured by speed (2D) or
 /// density against x coloured by velocity (1D).
 /// Returns the files written.
@@ -41,6 +46,16 @@ pub fn write_trajectory<T: Real>(
         ("mass".to_string(), stack(&|f| &f.mass, vec![t, n])?),
         ("time".to_string(), Tensor::from_vec(frames.iter().map(|f| f.time).collect::<Vec<_>>(), t, &dev)?),
     ];
+    // Per-particle scalars only some solvers have (1D compressible SPH), when every frame has them.
+    for (name, get) in [
+        ("pressure", (|f| f.pressure.as_deref()) as OptionalArray),
+        ("internal_energy", |f| f.internal_energy.as_deref()),
+        ("smoothing_length", |f| f.smoothing_length.as_deref()),
+    ] {
+        if t > 0 && frames.iter().all(|f| get(f).is_some_and(|v| v.len() == n)) {
+            arrays.push((name.to_string(), stack(&|f| get(f).unwrap_or(&[]), vec![t, n])?));
+        }
+    }
     let fixed = stepper.fixed_positions();
     if !fixed.is_empty() {
         let nf = fixed.len() / dim;

@@ -22,6 +22,13 @@ pub struct Frame {
     pub density: Vec<f64>,
     /// Masses `[n]`.
     pub mass: Vec<f64>,
+    /// Pressures `[n]` (compressible 1D SPH only): `(γ - 1) ρ u` of the frame's density and
+    /// energy.
+    pub pressure: Option<Vec<f64>>,
+    /// Specific internal energies `[n]` (compressible 1D SPH only).
+    pub internal_energy: Option<Vec<f64>>,
+    /// Smoothing lengths `[n]` (compressible 1D SPH only: adaptive per particle).
+    pub smoothing_length: Option<Vec<f64>>,
 }
 
 /// A built stepper of one of the solvers, in precision `T` (`f32` or `f64`).
@@ -82,7 +89,8 @@ impl<T: Real> Stepper<T> {
     }
 
     /// The moving particles now (fluid / mobile only; ghosts and walls are in
-    /// [`Stepper::fixed_positions`]), widened to `f64`. IISPH densities are summation densities
+    /// [`Stepper::fixed_positions`]), widened to `f64`; 1D compressible SPH adds pressure,
+    /// specific internal energy and smoothing length. IISPH densities are summation densities
     /// at the current positions.
     pub fn frame(&mut self) -> Result<Frame> {
         Ok(match self {
@@ -94,6 +102,13 @@ impl<T: Real> Stepper<T> {
                     velocities: wide(&s.v[..n]),
                     density: wide(&s.rho[..n]),
                     mass: wide(&s.m[..n]),
+                    // The equation of state at the frame's density and energy (the solver's own
+                    // `p` was evaluated with the energy predicted mid-step).
+                    pressure: Some(
+                        (0..n).map(|i| (s.params().gamma - 1.0) * s.rho[i].wide() * s.u[i].wide()).collect(),
+                    ),
+                    internal_energy: Some(wide(&s.u[..n])),
+                    smoothing_length: Some(wide(&s.h[..n])),
                 }
             }
             Stepper::Wcsph(s) => {
@@ -104,6 +119,9 @@ impl<T: Real> Stepper<T> {
                     velocities: wide2(&s.v),
                     density: wide(&s.rho[..n]),
                     mass: vec![s.physics().mass; n],
+                    pressure: None,
+                    internal_energy: None,
+                    smoothing_length: None,
                 }
             }
             Stepper::Iisph(s) => {
@@ -115,12 +133,15 @@ impl<T: Real> Stepper<T> {
                     velocities: wide2(&s.v),
                     density,
                     mass: vec![s.mass(); n],
+                    pressure: None,
+                    internal_energy: None,
+                    smoothing_length: None,
                 }
             }
         })
     }
 
-    /// Fixed particles (shock-tube ghosts, walls), row-major `[n_fixed * dim]`, widened to `f64`.
+    /// Fixed particles (shock-tube ghosts or moving buffers, walls), row-major `[n_fixed * dim]`, widened to `f64`.
     pub fn fixed_positions(&self) -> Vec<f64> {
         match self {
             Stepper::Sph1d(s) => wide(&s.x[s.n_mobile()..]),
