@@ -126,7 +126,7 @@ enum Command {
         krate: String,
         /// A built-in scene name (grid: burgers_1d, burgers_2d, heat, poisson,
         /// advection_diffusion, taylor_green, lid_driven_cavity, kolmogorov, smoke_plume,
-        /// cylinder; particles: shock_tube, dam_break, dam_break_iisph, periodic_1d_noise,
+        /// cylinder; particles: shock_tube, dam_break, dam_break_iisph, dam_break_dfsph, periodic_1d_noise,
         /// periodic_2d_box) or a .toml file.
         scene: String,
         /// Cells along x (y scaled to keep the aspect ratio).

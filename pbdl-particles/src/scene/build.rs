@@ -1,6 +1,7 @@
 //! Building a scene: [`Scene::build`] / [`Scene::build_as`] and one builder per section.
 
 use super::{scene_err, DamBreakScene, DamSolver, InitState, Periodic1dScene, Periodic2dScene, Scene, Stepper};
+use crate::dfsph::Dfsph;
 use crate::error::{Error, Result};
 use crate::iisph::Iisph;
 use crate::neighbors::Domain;
@@ -165,6 +166,7 @@ fn build_dam_break<T: Real>(name: &str, db: &DamBreakScene, init: Option<&InitSt
     match db.solver {
         DamSolver::Wcsph => check_h_over_dx(name, "dam_break.wcsph.h_over_dx", db.wcsph.h_over_dx)?,
         DamSolver::Iisph => check_h_over_dx(name, "dam_break.iisph.h_over_dx", db.iisph.h_over_dx)?,
+        DamSolver::Dfsph => check_h_over_dx(name, "dam_break.dfsph.h_over_dx", db.dfsph.h_over_dx)?,
     }
     // Lengths are a times the ratios; an overflow to infinity would give an unbounded cell list.
     let g = &db.geometry;
@@ -198,6 +200,28 @@ fn build_dam_break<T: Real>(name: &str, db: &DamBreakScene, init: Option<&InitSt
                             .contains(&field) =>
                     {
                         Error::SceneField { scene: name.into(), field: format!("dam_break.iisph.{field}"), reason }
+                    }
+                    e => field_err(name, sec, e),
+                }
+            })?)),
+            DamSolver::Dfsph => Stepper::Dfsph(Box::new(db.geometry.build_dfsph_as::<T>(db.dfsph).map_err(|e| {
+                match e {
+                    Error::Invalid { field, reason }
+                        if [
+                            "h_over_dx",
+                            "cfl",
+                            "dt_max",
+                            "tolerance",
+                            "max_iterations",
+                            "divergence_tolerance",
+                            "max_divergence_iterations",
+                            "omega",
+                            "warm_start",
+                            "nu",
+                        ]
+                        .contains(&field) =>
+                    {
+                        Error::SceneField { scene: name.into(), field: format!("dam_break.dfsph.{field}"), reason }
                     }
                     e => field_err(name, sec, e),
                 }
@@ -246,12 +270,29 @@ fn build_dam_break<T: Real>(name: &str, db: &DamBreakScene, init: Option<&InitSt
                     s.container(),
                 )?))
             }
+            Stepper::Dfsph(s) => {
+                let walls = s.x[s.n_fluid()..].to_vec();
+                let nf = x.len();
+                let all: Vec<[T; 2]> = x.into_iter().chain(walls).collect();
+                Stepper::Dfsph(Box::new(Dfsph::new(
+                    *s.params(),
+                    s.rho0(),
+                    s.dx(),
+                    [0.0, -db.geometry.g],
+                    all,
+                    v,
+                    nf,
+                    container_domain(s.container()),
+                    s.container(),
+                )?))
+            }
             s => s,
         };
         // Fluid must start inside the tank.
         let [lo, hi] = match &stepper {
             Stepper::Wcsph(s) => s.container(),
             Stepper::Iisph(s) => s.container(),
+            Stepper::Dfsph(s) => s.container(),
             Stepper::Sph1d(_) => unreachable!(),
         };
         for (i, p) in init.points2().iter().enumerate() {

@@ -14,6 +14,7 @@
 //! | `shock_tube` | [`ShockTubeScene`]: 1D grad-h SPH between two states (Sod by default), fixed ghosts or, when an end state moves, buffers moving with it |
 //! | `dam_break` | [`DamBreakScene`] with WCSPH: Martin & Moyce, H = 2a, wall particles |
 //! | `dam_break_iisph` | the same with incompressible IISPH |
+//! | `dam_break_dfsph` | the same with divergence-free SPH (DFSPH) |
 //! | `periodic_1d_noise` | [`Periodic1dScene`]: periodic 1D compressible SPH, Perlin-noise density (SFBC test case I style) |
 //! | `periodic_2d_box` | [`Periodic2dScene`]: periodic 2D WCSPH, no walls, no gravity, noise-driven velocity (SFBC test case II style) |
 //!
@@ -45,6 +46,7 @@ pub use init::InitState;
 pub use output::write_trajectory;
 pub use stepper::{run_frames, Frame, Stepper};
 
+use crate::dfsph::DfsphParams;
 use crate::error::{Error, Result};
 use crate::iisph::IisphParams;
 use crate::riemann::GasState;
@@ -61,7 +63,7 @@ macro_rules! builtin {
 
 /// The built-in scenes: `(name, TOML text)`.
 pub const BUILTIN: &[(&str, &str)] =
-    builtin!("shock_tube", "dam_break", "dam_break_iisph", "periodic_1d_noise", "periodic_2d_box");
+    builtin!("shock_tube", "dam_break", "dam_break_iisph", "dam_break_dfsph", "periodic_1d_noise", "periodic_2d_box");
 
 /// Names of the built-in scenes.
 pub fn builtin_names() -> Vec<&'static str> {
@@ -205,13 +207,15 @@ pub enum DamSolver {
     Wcsph,
     /// Implicit incompressible SPH ([`Iisph`](crate::Iisph)).
     Iisph,
+    /// Divergence-free SPH ([`Dfsph`](crate::dfsph::Dfsph)).
+    Dfsph,
 }
 
 /// `[dam_break]`: geometry and solver.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DamBreakScene {
-    /// `"wcsph"` (default) or `"iisph"`.
+    /// `"wcsph"` (default), `"iisph"` or `"dfsph"`.
     pub solver: DamSolver,
     /// Geometry and physics.
     pub geometry: DamBreak,
@@ -219,6 +223,8 @@ pub struct DamBreakScene {
     pub wcsph: WcsphParams,
     /// IISPH parameters (used when `solver = "iisph"`).
     pub iisph: IisphParams,
+    /// DFSPH parameters (used when `solver = "dfsph"`).
+    pub dfsph: DfsphParams,
 }
 
 /// `[periodic_1d]`: periodic 1D compressible SPH with a Perlin-noise density.

@@ -2,6 +2,7 @@
 //! [`Evolve`]), its output [`Frame`]s and [`run_frames`].
 
 use super::Scene;
+use crate::dfsph::Dfsph;
 use crate::error::Result;
 use crate::iisph::Iisph;
 use crate::sph1d::Sph1d;
@@ -40,6 +41,8 @@ pub enum Stepper<T: Real = f64> {
     Wcsph(Box<Wcsph<T>>),
     /// 2D incompressible SPH.
     Iisph(Box<Iisph<T>>),
+    /// 2D divergence-free SPH.
+    Dfsph(Box<Dfsph<T>>),
 }
 
 /// `T` values widened to `f64` (exact).
@@ -67,6 +70,7 @@ impl<T: Real> Stepper<T> {
             Stepper::Sph1d(s) => s.operators(),
             Stepper::Wcsph(s) => s.operators(),
             Stepper::Iisph(s) => s.operators(),
+            Stepper::Dfsph(s) => s.operators(),
         }
     }
 
@@ -76,6 +80,7 @@ impl<T: Real> Stepper<T> {
             Stepper::Sph1d(s) => s.time(),
             Stepper::Wcsph(s) => s.time(),
             Stepper::Iisph(s) => s.time(),
+            Stepper::Dfsph(s) => s.time(),
         }
     }
 
@@ -85,12 +90,13 @@ impl<T: Real> Stepper<T> {
             Stepper::Sph1d(s) => s.steps(),
             Stepper::Wcsph(s) => s.steps(),
             Stepper::Iisph(s) => s.steps(),
+            Stepper::Dfsph(s) => s.steps(),
         }
     }
 
     /// The moving particles now (fluid / mobile only; ghosts and walls are in
     /// [`Stepper::fixed_positions`]), widened to `f64`; 1D compressible SPH adds pressure,
-    /// specific internal energy and smoothing length. IISPH densities are summation densities
+    /// specific internal energy and smoothing length. IISPH and DFSPH densities are summation densities
     /// at the current positions.
     pub fn frame(&mut self) -> Result<Frame> {
         Ok(match self {
@@ -124,6 +130,20 @@ impl<T: Real> Stepper<T> {
                     smoothing_length: None,
                 }
             }
+            Stepper::Dfsph(s) => {
+                let n = s.n_fluid();
+                let density = wide(&s.summation_density()?);
+                Frame {
+                    time: s.time(),
+                    positions: wide2(&s.x[..n]),
+                    velocities: wide2(&s.v),
+                    density,
+                    mass: vec![s.mass(); n],
+                    pressure: None,
+                    internal_energy: None,
+                    smoothing_length: None,
+                }
+            }
             Stepper::Iisph(s) => {
                 let n = s.n_fluid();
                 let density = wide(&s.summation_density()?);
@@ -147,6 +167,7 @@ impl<T: Real> Stepper<T> {
             Stepper::Sph1d(s) => wide(&s.x[s.n_mobile()..]),
             Stepper::Wcsph(s) => wide2(&s.x[s.n_fluid()..]),
             Stepper::Iisph(s) => wide2(&s.x[s.n_fluid()..]),
+            Stepper::Dfsph(s) => wide2(&s.x[s.n_fluid()..]),
         }
     }
 
@@ -172,6 +193,11 @@ impl<T: Real> Stepper<T> {
                 let [lo, hi] = s.container();
                 [[lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m]]
             }
+            Stepper::Dfsph(s) => {
+                let m = 3.0 * s.dx();
+                let [lo, hi] = s.container();
+                [[lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m]]
+            }
         }
     }
 
@@ -184,6 +210,7 @@ impl<T: Real> Stepper<T> {
             }
             Stepper::Wcsph(s) => s.physics().dx,
             Stepper::Iisph(s) => s.dx(),
+            Stepper::Dfsph(s) => s.dx(),
         }
     }
 }
@@ -206,6 +233,7 @@ impl<T: Real> Evolve for Stepper<T> {
             Stepper::Sph1d(s) => Evolve::stable_dt(&**s),
             Stepper::Wcsph(s) => Evolve::stable_dt(&**s),
             Stepper::Iisph(s) => Evolve::stable_dt(&**s),
+            Stepper::Dfsph(s) => Evolve::stable_dt(&**s),
         }
     }
 
@@ -214,6 +242,7 @@ impl<T: Real> Evolve for Stepper<T> {
             Stepper::Sph1d(s) => s.step(dt),
             Stepper::Wcsph(s) => s.step(dt),
             Stepper::Iisph(s) => s.step(dt),
+            Stepper::Dfsph(s) => s.step(dt),
         }
     }
 
@@ -222,6 +251,7 @@ impl<T: Real> Evolve for Stepper<T> {
             Stepper::Sph1d(s) => s.next_dt(t_end),
             Stepper::Wcsph(s) => s.next_dt(t_end),
             Stepper::Iisph(s) => s.next_dt(t_end),
+            Stepper::Dfsph(s) => s.next_dt(t_end),
         }
     }
 }
