@@ -55,6 +55,26 @@ fn wide2<T: Real>(v: &[[T; 2]]) -> Vec<f64> {
     v.iter().flat_map(|p| [p[0].wide(), p[1].wide()]).collect()
 }
 
+/// A frame of the incompressible solvers with wall particles (IISPH, DFSPH): the fluid
+/// particles with their summation density and uniform mass.
+fn wall_solver_frame<T: Real>(time: f64, x: &[[T; 2]], v: &[[T; 2]], density: &[T], mass: f64) -> Frame {
+    Frame {
+        time,
+        positions: wide2(x),
+        velocities: wide2(v),
+        density: wide(density),
+        mass: vec![mass; x.len()],
+        pressure: None,
+        internal_energy: None,
+        smoothing_length: None,
+    }
+}
+
+/// The box `[lo, hi]` grown by `margin` on every side.
+fn padded([lo, hi]: [[f64; 2]; 2], margin: f64) -> [[f64; 2]; 2] {
+    [[lo[0] - margin, lo[1] - margin], [hi[0] + margin, hi[1] + margin]]
+}
+
 impl<T: Real> Stepper<T> {
     /// Spatial dimension.
     pub fn dim(&self) -> usize {
@@ -131,32 +151,12 @@ impl<T: Real> Stepper<T> {
                 }
             }
             Stepper::Dfsph(s) => {
-                let n = s.n_fluid();
-                let density = wide(&s.summation_density()?);
-                Frame {
-                    time: s.time(),
-                    positions: wide2(&s.x[..n]),
-                    velocities: wide2(&s.v),
-                    density,
-                    mass: vec![s.mass(); n],
-                    pressure: None,
-                    internal_energy: None,
-                    smoothing_length: None,
-                }
+                let density = s.summation_density()?;
+                wall_solver_frame(s.time(), &s.x[..s.n_fluid()], &s.v, &density, s.mass())
             }
             Stepper::Iisph(s) => {
-                let n = s.n_fluid();
-                let density = wide(&s.summation_density()?);
-                Frame {
-                    time: s.time(),
-                    positions: wide2(&s.x[..n]),
-                    velocities: wide2(&s.v),
-                    density,
-                    mass: vec![s.mass(); n],
-                    pressure: None,
-                    internal_energy: None,
-                    smoothing_length: None,
-                }
+                let density = s.summation_density()?;
+                wall_solver_frame(s.time(), &s.x[..s.n_fluid()], &s.v, &density, s.mass())
             }
         })
     }
@@ -180,24 +180,14 @@ impl<T: Real> Stepper<T> {
             }
             Stepper::Wcsph(s) => {
                 if s.x.len() > s.n_fluid() {
-                    let m = 3.0 * s.physics().dx;
-                    let [lo, hi] = s.container();
-                    [[lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m]]
+                    padded(s.container(), 3.0 * s.physics().dx)
                 } else {
                     let d = s.domain();
                     [d.lo.map(Real::wide), d.hi.map(Real::wide)]
                 }
             }
-            Stepper::Iisph(s) => {
-                let m = 3.0 * s.dx();
-                let [lo, hi] = s.container();
-                [[lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m]]
-            }
-            Stepper::Dfsph(s) => {
-                let m = 3.0 * s.dx();
-                let [lo, hi] = s.container();
-                [[lo[0] - m, lo[1] - m], [hi[0] + m, hi[1] + m]]
-            }
+            Stepper::Iisph(s) => padded(s.container(), 3.0 * s.dx()),
+            Stepper::Dfsph(s) => padded(s.container(), 3.0 * s.dx()),
         }
     }
 
