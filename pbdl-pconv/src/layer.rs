@@ -82,7 +82,7 @@ impl ContinuousConv {
 
 /// Puts `value` into `varmap` under `name` (replacing nothing: an existing variable is kept and
 /// returned, as `VarBuilder::get` does) and returns the variable's tensor.
-fn insert(varmap: &VarMap, name: &str, value: Tensor) -> Result<Tensor> {
+pub(crate) fn insert(varmap: &VarMap, name: &str, value: Tensor) -> Result<Tensor> {
     let mut data = varmap.data().lock().unwrap_or_else(|e| e.into_inner());
     if let Some(v) = data.get(name) {
         return Ok(v.as_tensor().clone());

@@ -15,6 +15,8 @@
 //! | [`graph`] | [`PairGraph`]: receiver-sorted pairs within the radius (cell list, periodic images) and differentiable offsets |
 //! | [`op`] | [`continuous_conv`]: the convolution as a custom op (block gather + GEMM), backward for features, weights, offsets |
 //! | [`layer`] | [`ContinuousConv`]: a layer with its weights in a `VarMap` (seeded init) and an optional bias |
+//! | [`net`] | [`net::BasisNetwork`]: SFBC's network (convolution + dense branch per layer, ReLU, output scale), optional antisymmetric last layer |
+//! | [`case1d`] | SFBC test case I at CPU size: periodic 1D compressible SPH data, density / density-gradient / update tasks, training, test errors, rollouts |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
 //! ```
@@ -40,11 +42,13 @@
 #![warn(missing_docs)]
 
 pub mod basis;
+pub mod case1d;
 pub mod error;
 pub mod filter;
 pub mod graph;
 pub mod layer;
 pub mod mapping;
+pub mod net;
 pub mod op;
 pub mod window;
 

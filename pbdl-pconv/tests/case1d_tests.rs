@@ -1,0 +1,50 @@
+//! SFBC test case I, small: the symmetry claims and momentum conservation of the antisymmetric
+//! last layer, on a few small periodic 1D SPH simulations (the full-size table is the
+//! `case1d` example; numbers in the README).
+
+use pbdl_pconv::case1d::{train_and_evaluate, Case1dConfig, Dataset1d, Task, TrainConfig};
+use pbdl_pconv::Basis;
+
+fn data() -> Dataset1d {
+    Dataset1d::generate(&Case1dConfig::small()).unwrap()
+}
+
+#[test]
+fn even_basis_cannot_learn_the_odd_density_gradient() {
+    let data = data();
+    let train = TrainConfig { steps: 400, ..TrainConfig::for_task(Task::DensityGradient) };
+    let even = train_and_evaluate(&data, Task::DensityGradient, Basis::FourierEven, &train, 0).unwrap();
+    let odd = train_and_evaluate(&data, Task::DensityGradient, Basis::FourierOdd, &train, 0).unwrap();
+    // An even filter summed against the constant feature gives an even response: no better
+    // than predicting the mean of an odd target.
+    assert!(even.test_rel_mse >= 0.9, "even basis on the odd target: {}", even.test_rel_mse);
+    assert!(odd.test_rel_mse <= 0.3, "odd basis on the odd target: {}", odd.test_rel_mse);
+}
+
+#[test]
+fn antisymmetric_last_layer_conserves_momentum_in_rollouts() {
+    let data = data();
+    let train = TrainConfig { steps: 150, ..TrainConfig::for_task(Task::Update) };
+    let anti = train_and_evaluate(
+        &data,
+        Task::Update,
+        Basis::Fourier,
+        &TrainConfig { antisymmetric: true, ..train.clone() },
+        0,
+    )
+    .unwrap();
+    let plain = train_and_evaluate(&data, Task::Update, Basis::Fourier, &train, 0).unwrap();
+    let (da, dp) = (anti.momentum_drift.unwrap(), plain.momentum_drift.unwrap());
+    assert!(da <= 1e-5, "antisymmetric drift {da:e}");
+    assert!(dp > 1e-3, "plain drift {dp:e} (the check must be able to fail)");
+    assert!(anti.rollout_error.unwrap().is_finite() && plain.rollout_error.unwrap().is_finite());
+}
+
+#[test]
+fn bad_configuration_is_a_typed_error() {
+    let cfg = Case1dConfig { frames: 1, ..Case1dConfig::small() };
+    let e = Dataset1d::generate(&cfg).unwrap_err();
+    assert!(e.to_string().contains("frames"), "{e}");
+    let cfg = Case1dConfig { test_seeds: vec![], ..Case1dConfig::small() };
+    assert!(Dataset1d::generate(&cfg).is_err());
+}
