@@ -38,6 +38,7 @@ use pbdl_particles::scene::Scene;
 use pbdl_particles::{Domain, Evolve};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
+use std::io::Write as _;
 use std::sync::Arc;
 
 /// Data of the experiment.
@@ -283,6 +284,11 @@ pub struct CaseResult {
     pub frozen_rollout_error: Option<f64>,
     /// Training wall time in seconds.
     pub train_seconds: f64,
+    /// The step training started from (0, or the checkpoint a resumed run continued from).
+    pub start_step: u64,
+    /// Median wall time of one network evaluation on a test frame (graph offsets included,
+    /// graph search excluded), seconds.
+    pub forward_seconds: f64,
 }
 
 fn sph_targets(data: &Dataset1d, task: Task, x: &[f64], graph: &PairGraph) -> Result<Vec<f64>> {
@@ -409,6 +415,56 @@ pub fn train_and_evaluate(
     train: &TrainConfig,
     seed: u64,
 ) -> Result<CaseResult> {
+    train_and_evaluate_in(data, task, basis, train, seed, None)
+}
+
+/// What a run directory was started with; a resumed run must match it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+struct RunSettings {
+    data: Case1dConfig,
+    task: Task,
+    basis: Basis,
+    train: TrainConfig,
+    seed: u64,
+}
+
+/// [`train_and_evaluate`] with a run directory: checkpoints (weights and Adam's state) every
+/// tenth of the steps and `loss.csv` there, a progress bar, and resumption of a stopped run.
+/// The directory's `settings.json` records the data, task, basis, training settings and seed;
+/// resuming with other ones is an [`Error::Config`] naming `run_dir`.
+pub fn train_and_evaluate_in(
+    data: &Dataset1d,
+    task: Task,
+    basis: Basis,
+    train: &TrainConfig,
+    seed: u64,
+    run_dir: Option<&std::path::Path>,
+) -> Result<CaseResult> {
+    if let Some(dir) = run_dir {
+        let settings = RunSettings { data: data.config.clone(), task, basis, train: train.clone(), seed };
+        let path = dir.join("settings.json");
+        let io = |e: std::io::Error| Error::Io { path: path.display().to_string(), source: e };
+        if path.exists() {
+            let text = std::fs::read_to_string(&path).map_err(io)?;
+            let old: RunSettings = serde_json::from_str(&text).map_err(|e| Error::Config {
+                field: "run_dir",
+                reason: format!("{}: unreadable settings ({e}); use a new directory", path.display()),
+            })?;
+            if old != settings {
+                return Err(Error::Config {
+                    field: "run_dir",
+                    reason: format!(
+                        "{} was started with other settings ({old:?}); use a new directory or the same settings",
+                        dir.display()
+                    ),
+                });
+            }
+        } else {
+            std::fs::create_dir_all(dir).map_err(io)?;
+            let json = serde_json::to_vec_pretty(&settings).expect("settings serialise");
+            pbdl_core::io::write_atomic(&path, |w| w.write_all(&json))?;
+        }
+    }
     let scales = scales(data, task)?;
     let samples: Vec<Sample> = if task == Task::Update {
         frame_pairs(&data.train).map(|(a, b)| make_sample(data, task, a, Some(b), &scales)).collect::<Result<_>>()?
@@ -421,12 +477,23 @@ pub fn train_and_evaluate(
     };
     let varmap = VarMap::new();
     let net = BasisNetwork::new(&varmap, network_config(data, task, basis, train), seed)?;
-    let cfg = LoopConfig { steps: train.steps, progress: false, ..Default::default() };
+    let cfg = match run_dir {
+        None => LoopConfig { steps: train.steps, progress: false, ..Default::default() },
+        Some(dir) => LoopConfig {
+            steps: train.steps,
+            checkpoint_every: (train.steps / 10).max(1),
+            dir: Some(dir.to_path_buf()),
+            progress: true,
+            ..Default::default()
+        },
+    };
     let adam = OptimizerConfig::Adam(AdamConfig { lr: train.lr, ..Default::default() });
     let steps = train.steps.max(1) as f64;
     let lr = |s: u64| train.lr * 0.5f64.powi(((s as f64 / steps) * 4.0).floor().min(3.0) as i32);
     let start = std::time::Instant::now();
-    let report = TrainLoop::resume(&varmap, cfg)?.run::<Error>(&adam, lr, CheckpointMeta::at, |step| {
+    let train_loop = TrainLoop::resume(&varmap, cfg)?;
+    let start_step = train_loop.start();
+    let report = train_loop.run::<Error>(&adam, lr, CheckpointMeta::at, |step| {
         // The frames of an update drawn from the seed and the step (resumable, reproducible).
         let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(seed, step));
         let mut loss: Option<Tensor> = None;
@@ -444,7 +511,11 @@ pub fn train_and_evaluate(
     })?;
     let train_seconds = start.elapsed().as_secs_f64();
     let tail = (report.losses.len() / 10).max(1);
-    let train_loss = report.losses.iter().rev().take(tail).map(|l| l.1).sum::<f64>() / tail as f64;
+    let train_loss = if report.losses.is_empty() {
+        f64::NAN
+    } else {
+        report.losses.iter().rev().take(tail).map(|l| l.1).sum::<f64>() / tail as f64
+    };
 
     // Test: relative MSE over all held-out frames.
     let (mut se, mut sum, mut sum2, mut count) = (0.0, 0.0, 0.0, 0usize);
@@ -457,8 +528,11 @@ pub fn train_and_evaluate(
             .map(|f| make_sample(data, task, f, None, &scales))
             .collect::<Result<_>>()?
     };
+    let mut forward_times = Vec::with_capacity(test_samples.len());
     for s in &test_samples {
+        let t0 = std::time::Instant::now();
         let y = net.forward(&s.graph, &s.features, &s.graph.offsets(&s.positions, &s.positions)?)?;
+        forward_times.push(t0.elapsed().as_secs_f64());
         let y = y.flatten_all()?.to_vec1::<f32>()?;
         let t = s.target.flatten_all()?.to_vec1::<f32>()?;
         for (a, b) in y.iter().zip(&t) {
@@ -469,6 +543,8 @@ pub fn train_and_evaluate(
             count += 1;
         }
     }
+    forward_times.sort_by(f64::total_cmp);
+    let forward_seconds = forward_times[forward_times.len() / 2];
     let n = count.max(1) as f64;
     let var = (sum2 / n - (sum / n).powi(2)).max(1e-30);
     let test_rel_mse = se / n / var;
@@ -498,6 +574,8 @@ pub fn train_and_evaluate(
         momentum_drift,
         frozen_rollout_error,
         train_seconds,
+        start_step,
+        forward_seconds,
     })
 }
 

@@ -36,6 +36,7 @@ mod data;
 mod metric;
 mod report;
 mod sim;
+mod pconv;
 mod sol;
 mod stress;
 mod stress_summary;
@@ -191,6 +192,10 @@ enum Command {
     /// correctors (resumable), evaluate them on held-out Reynolds numbers.
     #[command(subcommand)]
     Sol(sol::SolCommand),
+    /// Learned particle convolutions (CConv / SFBC / antisymmetric) on SFBC's test case I:
+    /// train one network (resumable), or evaluate every basis (time-against-error table).
+    #[command(subcommand)]
+    Pconv(pconv::PconvCommand),
     /// PDE control of forced 1D Burgers (Holl et al. 2020): train the controller (resumable),
     /// evaluate it against the direct optimiser and no control.
     #[command(subcommand)]
@@ -399,6 +404,7 @@ fn main() -> anyhow::Result<()> {
             weather::eval(weather::EvalArgs { data, runs, out })
         }
         Command::Sol(cmd) => sol::run_sol(cmd),
+        Command::Pconv(cmd) => pconv::run(cmd),
         Command::Control(cmd) => sol::run_control(cmd),
         Command::Ci => ci::run(),
         Command::List => {
