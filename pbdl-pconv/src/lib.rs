@@ -16,7 +16,7 @@
 //! | [`op`] | [`continuous_conv`]: the convolution as a custom op (block gather + GEMM), backward for features, weights, offsets |
 //! | [`layer`] | [`ContinuousConv`]: a layer with its weights in a `VarMap` (seeded init) and an optional bias |
 //! | [`net`] | [`net::BasisNetwork`]: SFBC's network (convolution + dense branch per layer, ReLU, output scale), optional antisymmetric last layer |
-//! | [`case1d`] | SFBC test case I at CPU size: periodic 1D compressible SPH data, density / density-gradient / update tasks, training, test errors, rollouts |
+//! | [`periodic_case`] | SFBC's test cases I (periodic 1D compressible SPH) and II (periodic 2D weakly compressible SPH) at CPU size: data from pbdl-particles, density / density-gradient / update tasks, training (resumable), test errors, rollouts, momentum drift |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
 //! ```
@@ -42,7 +42,6 @@
 #![warn(missing_docs)]
 
 pub mod basis;
-pub mod case1d;
 pub mod error;
 pub mod filter;
 pub mod graph;
@@ -50,6 +49,7 @@ pub mod layer;
 pub mod mapping;
 pub mod net;
 pub mod op;
+pub mod periodic_case;
 pub mod window;
 
 pub use basis::Basis;

@@ -1,5 +1,5 @@
-//! `cargo xtask pconv train|eval`: learned particle convolutions on SFBC's test case I
-//! (periodic 1D compressible SPH; pbdl_pconv::case1d).
+//! `cargo xtask pconv train|eval`: learned particle convolutions on SFBC's periodic test cases
+//! I (1D compressible SPH) and II (2D weakly compressible SPH) (pbdl_pconv::periodic_case).
 //!
 //! `train` fits one network (task, basis, seed) in a resumable run directory; `eval` trains
 //! every requested basis in memory and writes the time-against-error table: test relative MSE,
@@ -8,8 +8,8 @@
 
 use anyhow::Context as _;
 use pbdl_core::viz::{pareto_plot, ParetoPoint, PlotStyle};
-use pbdl_pconv::case1d::{
-    train_and_evaluate, train_and_evaluate_in, Case1dConfig, CaseResult, Dataset1d, Task, TrainConfig,
+use pbdl_pconv::periodic_case::{
+    train_and_evaluate, train_and_evaluate_in, CaseConfig, CaseKind, CaseResult, Dataset, Task, TrainConfig,
 };
 use pbdl_pconv::Basis;
 use std::path::PathBuf;
@@ -27,6 +27,10 @@ pub enum PconvCommand {
 /// Arguments of `pconv train`.
 #[derive(clap::Args)]
 pub struct TrainArgs {
+    /// 1d (SFBC test case I: periodic compressible SPH) or 2d (test case II: periodic weakly
+    /// compressible SPH).
+    #[arg(long, default_value = "1d")]
+    pub case: String,
     /// density, density_gradient or update.
     #[arg(long, default_value = "update")]
     pub task: String,
@@ -45,7 +49,7 @@ pub struct TrainArgs {
     /// Run directory.
     #[arg(long)]
     pub out: PathBuf,
-    /// Small data (256 particles, 3 + 1 simulations of 12 frames): seconds, for tests.
+    /// Small data (256 particles or 16 x 16, 3 + 1 simulations of 12 frames): seconds, for tests.
     #[arg(long)]
     pub quick: bool,
 }
@@ -53,6 +57,10 @@ pub struct TrainArgs {
 /// Arguments of `pconv eval`.
 #[derive(clap::Args)]
 pub struct EvalArgs {
+    /// 1d (SFBC test case I: periodic compressible SPH) or 2d (test case II: periodic weakly
+    /// compressible SPH).
+    #[arg(long, default_value = "1d")]
+    pub case: String,
     /// Comma-separated tasks.
     #[arg(long, default_value = "density,density_gradient,update")]
     pub tasks: String,
@@ -77,12 +85,7 @@ pub struct EvalArgs {
 }
 
 fn parse_task(name: &str) -> anyhow::Result<Task> {
-    Ok(match name {
-        "density" => Task::Density,
-        "density_gradient" => Task::DensityGradient,
-        "update" => Task::Update,
-        other => anyhow::bail!("unknown task `{other}`; use density, density_gradient or update"),
-    })
+    Task::from_name(name).with_context(|| format!("unknown task `{name}`; use density, density_gradient or update"))
 }
 
 fn parse_basis(name: &str) -> anyhow::Result<Basis> {
@@ -92,12 +95,13 @@ fn parse_basis(name: &str) -> anyhow::Result<Basis> {
     })
 }
 
-fn data_config(quick: bool) -> Case1dConfig {
-    if quick {
-        Case1dConfig::small()
-    } else {
-        Case1dConfig::default()
-    }
+fn data_config(case: &str, quick: bool) -> anyhow::Result<CaseConfig> {
+    let kind = match case {
+        "1d" => CaseKind::Compressible1d,
+        "2d" => CaseKind::WeaklyCompressible2d,
+        other => anyhow::bail!("unknown case `{other}`; use 1d (SFBC test case I) or 2d (test case II)"),
+    };
+    Ok(if quick { CaseConfig::small(kind) } else { CaseConfig::for_kind(kind) })
 }
 
 fn train_config(task: Task, steps: Option<u64>, antisymmetric: bool) -> TrainConfig {
@@ -114,7 +118,7 @@ pub fn run(cmd: PconvCommand) -> anyhow::Result<()> {
         PconvCommand::Train(a) => {
             let task = parse_task(&a.task)?;
             let basis = parse_basis(&a.basis)?;
-            let data = Dataset1d::generate(&data_config(a.quick))?;
+            let data = Dataset::generate(&data_config(&a.case, a.quick)?)?;
             let train = train_config(task, a.steps, a.antisymmetric);
             let r = train_and_evaluate_in(&data, task, basis, &train, a.seed, Some(&a.out))?;
             let json = serde_json::to_vec_pretty(&r)?;
@@ -130,11 +134,13 @@ pub fn run(cmd: PconvCommand) -> anyhow::Result<()> {
                 None => Basis::ALL.to_vec(),
                 Some(list) => list.split(',').map(parse_basis).collect::<anyhow::Result<Vec<_>>>()?,
             };
-            let data = Dataset1d::generate(&data_config(a.quick))?;
+            let data = Dataset::generate(&data_config(&a.case, a.quick)?)?;
             let mut rows = Vec::new();
             let mut md = format!(
-                "# pconv eval: SFBC test case I ({} particles, {} + {} simulations of {} frames)\n\n{}\n",
+                "# pconv eval: SFBC test case {} ({} particles{}, {} + {} simulations of {} frames)\n\n{}\n",
+                if data.dim() == 1 { "I" } else { "II" },
                 data.config.particles,
+                if data.dim() == 1 { "" } else { " per side" },
                 data.train.len(),
                 data.test.len(),
                 data.config.frames,
@@ -172,7 +178,11 @@ pub fn run(cmd: PconvCommand) -> anyhow::Result<()> {
                 })
                 .collect();
             let style = PlotStyle {
-                title: "SFBC test case I: network time per frame vs test error".into(),
+                title: format!(
+                    "SFBC test case {}: network time per frame vs test error",
+                    if data.dim() == 1 { "I" } else { "II" }
+                )
+                .into(),
                 x_label: "ms per frame".into(),
                 y_label: "test relative MSE".into(),
                 ..PlotStyle::pareto()

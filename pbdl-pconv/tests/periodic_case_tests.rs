@@ -2,11 +2,11 @@
 //! last layer, on a few small periodic 1D SPH simulations (the full-size table is the
 //! `case1d` example; numbers in the README).
 
-use pbdl_pconv::case1d::{train_and_evaluate, Case1dConfig, Dataset1d, Task, TrainConfig};
+use pbdl_pconv::periodic_case::{train_and_evaluate, CaseConfig, CaseKind, Dataset, Task, TrainConfig};
 use pbdl_pconv::Basis;
 
-fn data() -> Dataset1d {
-    Dataset1d::generate(&Case1dConfig::small()).unwrap()
+fn data() -> Dataset {
+    Dataset::generate(&CaseConfig::small(CaseKind::Compressible1d)).unwrap()
 }
 
 #[test]
@@ -42,9 +42,9 @@ fn antisymmetric_last_layer_conserves_momentum_in_rollouts() {
 
 #[test]
 fn bad_configuration_is_a_typed_error() {
-    let cfg = Case1dConfig { frames: 1, ..Case1dConfig::small() };
-    let e = Dataset1d::generate(&cfg).unwrap_err();
+    let cfg = CaseConfig { frames: 1, ..CaseConfig::small(CaseKind::Compressible1d) };
+    let e = Dataset::generate(&cfg).unwrap_err();
     assert!(e.to_string().contains("frames"), "{e}");
-    let cfg = Case1dConfig { test_seeds: vec![], ..Case1dConfig::small() };
-    assert!(Dataset1d::generate(&cfg).is_err());
+    let cfg = CaseConfig { test_seeds: vec![], ..CaseConfig::small(CaseKind::Compressible1d) };
+    assert!(Dataset::generate(&cfg).is_err());
 }

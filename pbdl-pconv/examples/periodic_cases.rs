@@ -1,8 +1,9 @@
-//! SFBC test case I at CPU size: every basis on the three tasks, a table of test errors.
+//! SFBC test case I (or II with `2d`) at CPU size: every basis on the three tasks, a table of
+//! test errors.
 //!
-//! `cargo run --release -p pbdl-pconv --example case1d [small] [seeds=N] [steps=N] [tasks=density,update,...]`
+//! `cargo run --release -p pbdl-pconv --example periodic_cases [2d] [small] [seeds=N] [steps=N] [tasks=density,update,...]`
 
-use pbdl_pconv::case1d::{train_and_evaluate, Case1dConfig, Dataset1d, Task, TrainConfig};
+use pbdl_pconv::periodic_case::{train_and_evaluate, CaseConfig, CaseKind, Dataset, Task, TrainConfig};
 use pbdl_pconv::Basis;
 
 #[global_allocator]
@@ -29,9 +30,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             })
             .collect::<Result<_, _>>()?,
     };
-    let cfg = if small { Case1dConfig::small() } else { Case1dConfig::default() };
+    let kind =
+        if std::env::args().any(|a| a == "2d") { CaseKind::WeaklyCompressible2d } else { CaseKind::Compressible1d };
+    let cfg = if small { CaseConfig::small(kind) } else { CaseConfig::for_kind(kind) };
     let t = std::time::Instant::now();
-    let data = Dataset1d::generate(&cfg)?;
+    let data = Dataset::generate(&cfg)?;
     println!(
         "data: {} + {} simulations of {} frames, frame dt {:.2e} s, {:.1} s",
         data.train.len(),
