@@ -181,8 +181,7 @@ pub fn run(cmd: PconvCommand) -> anyhow::Result<()> {
                 title: format!(
                     "SFBC test case {}: network time per frame vs test error",
                     if data.dim() == 1 { "I" } else { "II" }
-                )
-                .into(),
+                ),
                 x_label: "ms per frame".into(),
                 y_label: "test relative MSE".into(),
                 ..PlotStyle::pareto()
