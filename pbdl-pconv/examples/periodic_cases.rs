@@ -1,7 +1,8 @@
 //! SFBC test case I (or II with `2d`) at CPU size: every basis on the three tasks, a table of
 //! test errors.
 //!
-//! `cargo run --release -p pbdl-pconv --example periodic_cases [2d] [small] [seeds=N] [steps=N] [tasks=density,update,...]`
+//! `cargo run --release -p pbdl-pconv --example periodic_cases [2d] [small] [seeds=N] [steps=N] [rollout=K]
+//! [tasks=density,update,...] [bases=fourier,linear,...] [anti=no|only]`
 
 use pbdl_pconv::periodic_case::{train_and_evaluate, CaseConfig, CaseKind, Dataset, Task, TrainConfig};
 use pbdl_pconv::Basis;
@@ -18,6 +19,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let small = std::env::args().any(|a| a == "small");
     let seeds: u64 = arg("seeds").map_or(Ok(1), |s| s.parse())?;
     let steps: Option<u64> = arg("steps").map(|s| s.parse()).transpose()?;
+    let rollout: usize = arg("rollout").map_or(Ok(1), |s| s.parse())?;
+    let bases: Vec<Basis> = match arg("bases") {
+        None => Basis::ALL.to_vec(),
+        Some(list) => list
+            .split(',')
+            .map(|b| Basis::from_name(b).ok_or(format!("unknown basis {b}")))
+            .collect::<Result<_, _>>()?,
+    };
+    let anti_variants: Vec<bool> = match arg("anti").as_deref() {
+        Some("no") => vec![false],
+        Some("only") => vec![true],
+        _ => vec![false, true],
+    };
     let tasks: Vec<Task> = match arg("tasks") {
         None => vec![Task::Density, Task::DensityGradient, Task::Update],
         Some(list) => list
@@ -46,11 +60,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("| task | basis | anti | seed | train loss | test rel. MSE | rollout err (dx) | frozen (dx) | momentum drift | s |");
     println!("|---|---|---|---|---|---|---|---|---|---|");
     for task in tasks {
-        let variants: &[bool] = if task == Task::Update { &[false, true] } else { &[false] };
+        let variants: &[bool] = if task == Task::Update { &anti_variants } else { &[false] };
         for &anti in variants {
-            for basis in Basis::ALL {
+            for &basis in &bases {
                 for seed in 0..seeds {
-                    let mut train = TrainConfig { antisymmetric: anti, ..TrainConfig::for_task(task) };
+                    let mut train =
+                        TrainConfig { antisymmetric: anti, rollout_steps: rollout, ..TrainConfig::for_task(task) };
                     if let Some(s) = steps {
                         train.steps = s;
                     }

@@ -357,11 +357,23 @@ pub struct TrainConfig {
     pub lr: f64,
     /// Antisymmetric last layer (DMCF) for the update task.
     pub antisymmetric: bool,
+    /// Update task: frames the network is unrolled over in training (1: one-step targets).
+    /// Each unrolled frame rebuilds the neighbour graph at the predicted positions, and the
+    /// loss reaches earlier frames through the positions (the convolution's offset gradient).
+    pub rollout_steps: usize,
 }
 
 impl Default for TrainConfig {
     fn default() -> Self {
-        TrainConfig { terms: 6, hidden: Vec::new(), steps: 1000, batch: 4, lr: 1e-2, antisymmetric: false }
+        TrainConfig {
+            terms: 6,
+            hidden: Vec::new(),
+            steps: 1000,
+            batch: 4,
+            lr: 1e-2,
+            antisymmetric: false,
+            rollout_steps: 1,
+        }
     }
 }
 
@@ -621,6 +633,13 @@ pub fn train_and_evaluate_in(
     let adam = OptimizerConfig::Adam(AdamConfig { lr: train.lr, ..Default::default() });
     let steps = train.steps.max(1) as f64;
     let lr = |s: u64| train.lr * 0.5f64.powi(((s as f64 / steps) * 4.0).floor().min(3.0) as i32);
+    let unroll = if task == Task::Update { train.rollout_steps.max(1) } else { 1 };
+    if unroll >= data.config.frames {
+        return Err(Error::Config {
+            field: "rollout_steps",
+            reason: format!("{unroll} with {} frames per simulation; use fewer than the frames", data.config.frames),
+        });
+    }
     let start = std::time::Instant::now();
     let train_loop = TrainLoop::resume(&varmap, cfg)?;
     let start_step = train_loop.start();
@@ -629,10 +648,16 @@ pub fn train_and_evaluate_in(
         let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(seed, step));
         let mut loss: Option<Tensor> = None;
         for _ in 0..train.batch.max(1) {
-            let s = &train_samples[rng.random_range(0..train_samples.len())];
-            let d = s.graph.offsets(&s.positions, &s.positions)?;
-            let y = net.forward(&s.graph, &s.features, &d)?;
-            let l = (y - &s.target)?.sqr()?.mean_all()?;
+            let l = if unroll > 1 {
+                let sim = &data.train[rng.random_range(0..data.train.len())];
+                let t = rng.random_range(0..sim.frames.len() - unroll);
+                unrolled_loss(data, &net, &scales, sim, t, unroll)?
+            } else {
+                let s = &train_samples[rng.random_range(0..train_samples.len())];
+                let d = s.graph.offsets(&s.positions, &s.positions)?;
+                let y = net.forward(&s.graph, &s.features, &d)?;
+                (y - &s.target)?.sqr()?.mean_all()?
+            };
             loss = Some(match loss {
                 None => l,
                 Some(acc) => (acc + l)?,
@@ -700,6 +725,47 @@ pub fn train_and_evaluate_in(
         start_step,
         forward_seconds,
     })
+}
+
+/// The standardised velocity error of the update network unrolled over `k` frames from frame
+/// `t` of `sim`, averaged over the frames; differentiable through the predicted positions.
+fn unrolled_loss(
+    data: &Dataset,
+    net: &BasisNetwork,
+    scales: &Scales,
+    sim: &Simulation,
+    t: usize,
+    k: usize,
+) -> Result<Tensor> {
+    let dim = data.dim();
+    let n = sim.frames[t].x.len() / dim;
+    let dev = Device::Cpu;
+    let tensor = |v: &[f64]| Tensor::from_vec(v.iter().map(|&a| a as f32).collect::<Vec<_>>(), (n, dim), &dev);
+    let (lo, l) = (data.lo, data.hi - data.lo);
+    let mut x = tensor(&sim.frames[t].x)?;
+    let mut v = tensor(&sim.frames[t].v)?;
+    let ones = Tensor::ones((n, 1), DType::F32, &dev)?;
+    let mut loss: Option<Tensor> = None;
+    for s in 0..k {
+        // Back into the periodic box by a constant shift (no gradient through the wrap count).
+        let values = x.flatten_all()?.to_vec1::<f32>()?;
+        let shift: Vec<f32> = values.iter().map(|&a| (-l * ((a as f64 - lo) / l).floor()) as f32).collect();
+        x = (x + Tensor::from_vec(shift, (n, dim), &dev)?)?;
+        let wrapped: Vec<f64> = x.flatten_all()?.to_vec1::<f32>()?.into_iter().map(f64::from).collect();
+        let graph = Arc::new(data.graph(&wrapped)?);
+        let features = Tensor::cat(&[&ones, &(&v / scales.velocity)?], 1)?;
+        let dv = (net.forward(&graph, &features, &graph.offsets(&x, &x)?)? * scales.target)?;
+        let v_new = (&v + dv)?;
+        x = (&x + ((&v + &v_new)? * (0.5 * data.frame_dt))?)?;
+        let truth = tensor(&sim.frames[t + s + 1].v)?;
+        let step = ((&v_new - truth)? / scales.target)?.sqr()?.mean_all()?;
+        loss = Some(match loss {
+            None => step,
+            Some(acc) => (acc + step)?,
+        });
+        v = v_new;
+    }
+    Ok((loss.expect("k >= 1") / k as f64)?)
 }
 
 /// Rolls the update network (or, with `None`, constant velocities) out from the first frame of

@@ -48,3 +48,33 @@ fn bad_configuration_is_a_typed_error() {
     let cfg = CaseConfig { test_seeds: vec![], ..CaseConfig::small(CaseKind::Compressible1d) };
     assert!(Dataset::generate(&cfg).is_err());
 }
+
+#[test]
+fn test_case_2_antisymmetric_rollout_conserves_both_momentum_components() {
+    let data = Dataset::generate(&CaseConfig::small(CaseKind::WeaklyCompressible2d)).unwrap();
+    assert_eq!(data.dim(), 2);
+    let train = TrainConfig { steps: 40, ..TrainConfig::for_task(Task::Update) };
+    let anti = train_and_evaluate(
+        &data,
+        Task::Update,
+        Basis::Fourier,
+        &TrainConfig { antisymmetric: true, ..train.clone() },
+        0,
+    )
+    .unwrap();
+    let plain = train_and_evaluate(&data, Task::Update, Basis::Fourier, &train, 0).unwrap();
+    let (da, dp) = (anti.momentum_drift.unwrap(), plain.momentum_drift.unwrap());
+    assert!(da <= 1e-5, "antisymmetric drift {da:e}");
+    assert!(dp > 1e-4, "plain drift {dp:e} (the check must be able to fail)");
+}
+
+#[test]
+fn unrolled_training_runs_through_positions() {
+    let data = data();
+    let train = TrainConfig { steps: 30, rollout_steps: 3, ..TrainConfig::for_task(Task::Update) };
+    let r = train_and_evaluate(&data, Task::Update, Basis::Linear, &train, 0).unwrap();
+    assert!(r.train_loss.is_finite() && r.rollout_error.unwrap().is_finite());
+    let too_long = TrainConfig { rollout_steps: 12, ..train };
+    let e = train_and_evaluate(&data, Task::Update, Basis::Linear, &too_long, 0).unwrap_err();
+    assert!(e.to_string().contains("rollout_steps"), "{e}");
+}

@@ -40,6 +40,9 @@ pub struct TrainArgs {
     /// Antisymmetric last layer (momentum-conserving; update task).
     #[arg(long)]
     pub antisymmetric: bool,
+    /// Update task: frames unrolled per training sample (1: one-step targets).
+    #[arg(long, default_value_t = 1)]
+    pub rollout_steps: usize,
     /// Seed of the initial weights and the batches.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -76,6 +79,9 @@ pub struct EvalArgs {
     /// Also train the update task with an antisymmetric last layer.
     #[arg(long)]
     pub antisymmetric: bool,
+    /// Update task: frames unrolled per training sample (1: one-step targets).
+    #[arg(long, default_value_t = 1)]
+    pub rollout_steps: usize,
     /// Small data, for tests.
     #[arg(long)]
     pub quick: bool,
@@ -104,8 +110,8 @@ fn data_config(case: &str, quick: bool) -> anyhow::Result<CaseConfig> {
     Ok(if quick { CaseConfig::small(kind) } else { CaseConfig::for_kind(kind) })
 }
 
-fn train_config(task: Task, steps: Option<u64>, antisymmetric: bool) -> TrainConfig {
-    let mut t = TrainConfig { antisymmetric, ..TrainConfig::for_task(task) };
+fn train_config(task: Task, steps: Option<u64>, antisymmetric: bool, rollout_steps: usize) -> TrainConfig {
+    let mut t = TrainConfig { antisymmetric, rollout_steps, ..TrainConfig::for_task(task) };
     if let Some(s) = steps {
         t.steps = s;
     }
@@ -119,7 +125,7 @@ pub fn run(cmd: PconvCommand) -> anyhow::Result<()> {
             let task = parse_task(&a.task)?;
             let basis = parse_basis(&a.basis)?;
             let data = Dataset::generate(&data_config(&a.case, a.quick)?)?;
-            let train = train_config(task, a.steps, a.antisymmetric);
+            let train = train_config(task, a.steps, a.antisymmetric, a.rollout_steps);
             let r = train_and_evaluate_in(&data, task, basis, &train, a.seed, Some(&a.out))?;
             let json = serde_json::to_vec_pretty(&r)?;
             pbdl_core::io::write_atomic(a.out.join("summary.json"), |w| std::io::Write::write_all(w, &json))?;
@@ -151,7 +157,13 @@ pub fn run(cmd: PconvCommand) -> anyhow::Result<()> {
                 for &anti in variants {
                     for &basis in &bases {
                         for seed in 0..a.seeds {
-                            let r = train_and_evaluate(&data, task, basis, &train_config(task, a.steps, anti), seed)?;
+                            let r = train_and_evaluate(
+                                &data,
+                                task,
+                                basis,
+                                &train_config(task, a.steps, anti, a.rollout_steps),
+                                seed,
+                            )?;
                             let line = row(&r, anti);
                             println!("{line}");
                             md.push_str(&line);
