@@ -148,6 +148,11 @@ impl BasisNetwork {
         &self.cfg
     }
 
+    /// The convolution layers, first to last.
+    pub fn convolutions(&self) -> &[ContinuousConv] {
+        &self.convs
+    }
+
     /// `features [n, input_channels]` -> `[n, widths.last()]` on a self graph.
     pub fn forward(&self, graph: &Arc<PairGraph>, features: &Tensor, offsets: &Tensor) -> Result<Tensor> {
         let mut h = features.clone();

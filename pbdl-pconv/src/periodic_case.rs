@@ -606,6 +606,31 @@ pub fn train_and_evaluate_in(
     seed: u64,
     run_dir: Option<&Path>,
 ) -> Result<CaseResult> {
+    Ok(train_case(data, task, basis, train, seed, run_dir)?.result)
+}
+
+/// A trained network with its scales and results.
+#[derive(Clone)]
+pub struct TrainedCase {
+    /// The network.
+    pub net: BasisNetwork,
+    /// Its variables.
+    pub varmap: VarMap,
+    /// The standardisation it was trained with.
+    pub scales: Scales,
+    /// Its scores.
+    pub result: CaseResult,
+}
+
+/// [`train_and_evaluate_in`], keeping the network (to inspect its filters or roll it out).
+pub fn train_case(
+    data: &Dataset,
+    task: Task,
+    basis: Basis,
+    train: &TrainConfig,
+    seed: u64,
+    run_dir: Option<&Path>,
+) -> Result<TrainedCase> {
     if let Some(dir) = run_dir {
         check_run_dir(dir, &RunSettings { data: data.config.clone(), task, basis, train: train.clone(), seed })?;
     }
@@ -710,7 +735,7 @@ pub fn train_and_evaluate_in(
     } else {
         (None, None, None)
     };
-    Ok(CaseResult {
+    let result = CaseResult {
         case: data.config.kind,
         task,
         basis,
@@ -724,7 +749,83 @@ pub fn train_and_evaluate_in(
         train_seconds,
         start_step,
         forward_seconds,
-    })
+    };
+    Ok(TrainedCase { net, varmap, scales, result })
+}
+
+/// What a free rollout of the update network did (no reference needed).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FreeRollout {
+    /// Frames rolled out (up to the first non-finite one).
+    pub frames: usize,
+    /// The first frame whose state was not finite.
+    pub first_non_finite: Option<usize>,
+    /// Largest `|Σ v - Σ v_0|` (per component) relative to `Σ |v_0|` plus the total impulse
+    /// applied so far (`Σ_frames Σ_i |Δv_i|`): the scale of the round-off an exactly
+    /// conserving update can make.
+    pub momentum_drift: f64,
+    /// Largest speed over the rollout relative to the largest initial speed.
+    pub speed_growth: f64,
+    /// The first frame at which the largest speed exceeded 10x the initial one.
+    pub first_speed_blowup: Option<usize>,
+}
+
+/// Rolls the update network out `frames` frames from the first frame of the first test
+/// simulation, beyond the data's horizon (stress runs).
+pub fn free_rollout(data: &Dataset, trained: &TrainedCase, frames: usize) -> Result<FreeRollout> {
+    let dim = data.dim();
+    let (dt, l) = (data.frame_dt, data.hi - data.lo);
+    let start = &data.test[0].frames[0];
+    let (mut x, mut v) = (start.x.clone(), start.v.clone());
+    let momentum = |v: &[f64]| -> Vec<f64> { (0..dim).map(|a| v.iter().skip(a).step_by(dim).sum()).collect() };
+    let p0 = momentum(&v);
+    let scale = v.iter().map(|a| a.abs()).sum::<f64>().max(1e-300);
+    let v0 = v.iter().fold(0.0f64, |m, a| m.max(a.abs())).max(1e-300);
+    let mut out = FreeRollout {
+        frames: 0,
+        first_non_finite: None,
+        momentum_drift: 0.0,
+        speed_growth: 1.0,
+        first_speed_blowup: None,
+    };
+    let mut impulse = 0.0;
+    for f in 1..=frames {
+        let s = make_sample(data, Task::Update, &Frame { x: x.clone(), v: v.clone() }, None, &trained.scales)?;
+        let dv = trained.net.forward(&s.graph, &s.features, &s.graph.offsets(&s.positions, &s.positions)?)?;
+        let dv = dv.flatten_all()?.to_vec1::<f32>()?;
+        for k in 0..x.len() {
+            let step = dv[k] as f64 * trained.scales.target;
+            impulse += step.abs();
+            let v_new = v[k] + step;
+            x[k] = data.lo + (x[k] + dt * 0.5 * (v[k] + v_new) - data.lo).rem_euclid(l);
+            v[k] = v_new;
+        }
+        if x.iter().chain(&v).any(|a| !a.is_finite()) {
+            out.first_non_finite = Some(f);
+            break;
+        }
+        out.frames = f;
+        let p = momentum(&v);
+        for a in 0..dim {
+            out.momentum_drift = out.momentum_drift.max((p[a] - p0[a]).abs() / (scale + impulse));
+        }
+        out.speed_growth = out.speed_growth.max(v.iter().fold(0.0f64, |m, a| m.max(a.abs())) / v0);
+        if out.speed_growth > 10.0 && out.first_speed_blowup.is_none() {
+            out.first_speed_blowup = Some(f);
+        }
+    }
+    Ok(out)
+}
+
+/// The analytic filter the density-gradient task asks for, in the network's units: at the
+/// scaled offset `q = (x_j - x_i) / R`, `-m W'(|q| R) sign(q) R / (ρ0 scale)` (1D).
+pub fn density_gradient_filter(data: &Dataset, scales: &Scales, q: f64) -> Result<f64> {
+    let kernel = Kernel::new(KernelKind::WendlandC2, 1, data.radius / 2.0)?;
+    let r = q.abs() * data.radius;
+    if r == 0.0 || r >= data.radius {
+        return Ok(0.0);
+    }
+    Ok(-data.mass * kernel.dw_dr(r) * q.signum() * data.radius / (data.rho0 * scales.target))
 }
 
 /// The standardised velocity error of the update network unrolled over `k` frames from frame

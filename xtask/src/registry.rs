@@ -113,6 +113,7 @@ pub fn all() -> Vec<CrateTasks> {
         crate::entries::particles::tasks(),
         crate::entries::diffusion::tasks(),
         crate::entries::nets::tasks(),
+        crate::entries::pconv::tasks(),
         crate::entries::sol::tasks(),
         crate::entries::weather::tasks(),
     ]

@@ -9,6 +9,7 @@ pub mod metrics;
 pub mod nets;
 pub mod optim;
 pub mod particles;
+pub mod pconv;
 pub mod smoke3d;
 pub mod sol;
 pub mod spectral;
