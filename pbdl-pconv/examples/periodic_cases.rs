@@ -1,7 +1,7 @@
 //! SFBC test case I (or II with `2d`) at CPU size: every basis on the three tasks, a table of
 //! test errors.
 //!
-//! `cargo run --release -p pbdl-pconv --example periodic_cases [2d] [small] [seeds=N] [steps=N] [rollout=K]
+//! `cargo run --release -p pbdl-pconv --example periodic_cases [2d] [small] [seeds=N] [steps=N] [lr=X] [rollout=K]
 //! [tasks=density,update,...] [bases=fourier,linear,...] [anti=no|only]`
 
 use pbdl_pconv::periodic_case::{train_and_evaluate, CaseConfig, CaseKind, Dataset, Task, TrainConfig};
@@ -20,6 +20,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let seeds: u64 = arg("seeds").map_or(Ok(1), |s| s.parse())?;
     let steps: Option<u64> = arg("steps").map(|s| s.parse()).transpose()?;
     let rollout: usize = arg("rollout").map_or(Ok(1), |s| s.parse())?;
+    let lr: Option<f64> = arg("lr").map(|s| s.parse()).transpose()?;
     let bases: Vec<Basis> = match arg("bases") {
         None => Basis::ALL.to_vec(),
         Some(list) => list
@@ -68,6 +69,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                         TrainConfig { antisymmetric: anti, rollout_steps: rollout, ..TrainConfig::for_task(task) };
                     if let Some(s) = steps {
                         train.steps = s;
+                    }
+                    if let Some(lr) = lr {
+                        train.lr = lr;
                     }
                     let r = train_and_evaluate(&data, task, basis, &train, seed)?;
                     let opt = |v: Option<f64>, p: usize| v.map_or("-".into(), |e| format!("{e:.p$}"));

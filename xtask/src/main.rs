@@ -34,9 +34,9 @@ mod bench;
 mod ci;
 mod data;
 mod metric;
+mod pconv;
 mod report;
 mod sim;
-mod pconv;
 mod sol;
 mod stress;
 mod stress_summary;
@@ -87,6 +87,11 @@ struct Cli {
 enum Command {
     /// Run every method on its embedded default scene; write target/pbdl/tour/.
     Tour {
+        /// Only this crate (core, grid, ...); all when omitted.
+        krate: Option<String>,
+        /// Only the entry of this name.
+        #[arg(long)]
+        entry: Option<String>,
         /// Smaller sizes and fewer repetitions.
         #[arg(long)]
         quick: bool,
@@ -372,7 +377,12 @@ fn main() -> anyhow::Result<()> {
     keep_freed_pages();
     let cli = Cli::parse();
     match cli.command {
-        Command::Tour { quick, out } => tour::run(quick, out.unwrap_or_else(|| report::target_dir().join("tour"))),
+        Command::Tour { krate, entry, quick, out } => tour::run(
+            krate.as_deref(),
+            entry.as_deref(),
+            quick,
+            out.unwrap_or_else(|| report::target_dir().join("tour")),
+        ),
         Command::Bench { krate, quick, entry } => bench::run(krate.as_deref(), quick, entry.as_deref()),
         Command::Stress { krate, quick, entry, fuzz } if krate.as_deref() == Some("fuzz") => {
             anyhow::ensure!(entry.is_none(), "`stress fuzz` takes --target, not --entry");

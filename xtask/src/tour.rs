@@ -19,7 +19,9 @@ struct SummaryEntry {
 }
 
 /// Runs all tour entries and writes `report.md`, `summary.json` and the entries' files to `out`.
-pub fn run(quick: bool, out: PathBuf) -> anyhow::Result<()> {
+pub fn run(krate: Option<&str>, only: Option<&str>, quick: bool, out: PathBuf) -> anyhow::Result<()> {
+    let crates = registry::select(krate)?;
+    registry::check_entry(&crates, only, |c| c.tour.iter().map(|e| e.name).collect())?;
     std::fs::create_dir_all(&out)?;
     let threads = rayon::current_num_threads();
     let mut summary = Vec::new();
@@ -29,8 +31,8 @@ pub fn run(quick: bool, out: PathBuf) -> anyhow::Result<()> {
         if quick { ", quick mode" } else { "" }
     );
     let started = Instant::now();
-    for krate in registry::all() {
-        for entry in &krate.tour {
+    for krate in crates {
+        for entry in krate.tour.iter().filter(|e| only.is_none_or(|n| n == e.name)) {
             let dir = out.join(krate.crate_name).join(entry.name);
             std::fs::create_dir_all(&dir)?;
             let ctx = TaskContext { out_dir: dir.clone(), quick, threads };
