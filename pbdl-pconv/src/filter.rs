@@ -109,10 +109,12 @@ impl FilterSpec {
         PairFilter {
             spec: *self,
             inv_radius: T::c(1.0 / self.radius),
+            sparse: self.basis == Basis::Linear && !self.antisymmetric,
             b: vec![T::zero(); 3 * n],
             db: vec![T::zero(); 3 * n],
             bn: vec![T::zero(); 3 * n],
             dbn: vec![T::zero(); 3 * n],
+            sel: vec![0; 3 * n],
         }
     }
 }
@@ -121,11 +123,16 @@ impl FilterSpec {
 pub struct PairFilter<T> {
     spec: FilterSpec,
     inv_radius: T,
+    /// Linear basis, not antisymmetric: at most `2^dim` terms are nonzero (the interpolation
+    /// corners), and [`PairFilter::terms`] lists only those.
+    sparse: bool,
     // Per-axis basis values and derivatives at q (b, db) and at -q (bn, dbn), axis-major.
     b: Vec<T>,
     db: Vec<T>,
     bn: Vec<T>,
     dbn: Vec<T>,
+    /// Per axis, the basis indices that take part (axis-major, `n` slots each).
+    sel: Vec<usize>,
 }
 
 impl<T: Real> PairFilter<T> {
@@ -134,17 +141,74 @@ impl<T: Real> PairFilter<T> {
         &self.spec
     }
 
+    /// Whether [`PairFilter::terms`] lists only the nonzero terms (a linear basis that is not
+    /// antisymmetric) instead of all `K` in order.
+    pub fn is_sparse(&self) -> bool {
+        self.sparse
+    }
+
+    /// The most terms [`PairFilter::terms`] writes: `2^dim` when sparse, else `K`.
+    pub fn max_terms(&self) -> usize {
+        if self.sparse {
+            1 << self.spec.dim
+        } else {
+            self.spec.filter_size()
+        }
+    }
+
     /// The `K` values `v_k(d)` for the offset `d = x_j - x_i` (unscaled, `dim` components).
     pub fn values(&mut self, d: &[T], values: &mut [T]) {
-        self.eval(d, values, None);
+        if self.sparse {
+            values[..self.spec.filter_size()].fill(T::zero());
+        }
+        self.eval(d, false, |k, v, _| values[k] = v);
     }
 
     /// Values and their gradients `grads[k * dim + a] = ∂v_k/∂d_a`.
     pub fn values_and_grads(&mut self, d: &[T], values: &mut [T], grads: &mut [T]) {
-        self.eval(d, values, Some(grads));
+        let dim = self.spec.dim;
+        if self.sparse {
+            let k = self.spec.filter_size();
+            values[..k].fill(T::zero());
+            grads[..k * dim].fill(T::zero());
+        }
+        self.eval(d, true, |k, v, g| {
+            values[k] = v;
+            for a in 0..dim {
+                grads[k * dim + a] = g[a];
+            }
+        });
     }
 
-    fn eval(&mut self, d: &[T], values: &mut [T], mut grads: Option<&mut [T]>) {
+    /// The terms of one offset as a list: `idx[t]` the filter index `k`, `values[t]` = `v_k(d)`
+    /// and, when asked for, `grads[t * dim + a]` = `∂v_k/∂d_a`; returns the count. All `K`
+    /// terms in order (`idx[t] = t`), or only the `2^dim` that can be nonzero when
+    /// [`PairFilter::is_sparse`]. Buffers need [`PairFilter::max_terms`] slots.
+    pub fn terms(&mut self, d: &[T], idx: &mut [u32], values: &mut [T], grads: Option<&mut [T]>) -> usize {
+        let dim = self.spec.dim;
+        let mut m = 0;
+        match grads {
+            None => self.eval(d, false, |k, v, _| {
+                idx[m] = k as u32;
+                values[m] = v;
+                m += 1;
+            }),
+            Some(grads) => self.eval(d, true, |k, v, g| {
+                idx[m] = k as u32;
+                values[m] = v;
+                for a in 0..dim {
+                    grads[m * dim + a] = g[a];
+                }
+                m += 1;
+            }),
+        }
+        m
+    }
+
+    /// Calls `emit(k, v_k, ∇v_k)` for every term (only the possibly nonzero ones when sparse),
+    /// `k` ascending. The gradient is left zero unless `want_grads`.
+    #[inline(always)]
+    fn eval(&mut self, d: &[T], want_grads: bool, mut emit: impl FnMut(usize, T, &[T; 3])) {
         let dim = self.spec.dim;
         let n = self.spec.terms;
         let mut s = [T::zero(); 3];
@@ -155,55 +219,90 @@ impl<T: Real> PairFilter<T> {
         let (w, dw_over_r) = self.spec.window.eval(r2.sqrt());
         let (q, jac) = self.spec.map.apply(dim, s);
         let basis = self.spec.basis;
+        let anti = self.spec.antisymmetric;
+        let mut count = [n; 3];
         for a in 0..dim {
             basis.eval(q[a], &mut self.b[a * n..(a + 1) * n], &mut self.db[a * n..(a + 1) * n]);
-            if self.spec.antisymmetric {
+            if anti {
                 basis.eval(-q[a], &mut self.bn[a * n..(a + 1) * n], &mut self.dbn[a * n..(a + 1) * n]);
             }
-        }
-        let k_total = n.pow(dim as u32);
-        for k in 0..k_total {
-            // Multi-index of k in a row-major [n; dim] grid (the last axis fastest).
-            let mut idx = [0usize; 3];
-            let mut rest = k;
-            for a in (0..dim).rev() {
-                idx[a] = rest % n;
-                rest /= n;
-            }
-            let (phi, dphi) = product(&self.b, &self.db, &idx, dim, n);
-            let (value, dq) = if self.spec.antisymmetric {
-                // psi(s) = phi(m(s)) - phi(-m(s)); d/dq of phi(-q) is -(∇phi)(-q).
-                let (phin, dphin) = product(&self.bn, &self.dbn, &idx, dim, n);
-                (phi - phin, std::array::from_fn::<T, 3, _>(|a| dphi[a] + dphin[a]))
-            } else {
-                (phi, dphi)
-            };
-            values[k] = w * value;
-            if let Some(g) = grads.as_deref_mut() {
-                for b in 0..dim {
-                    // ∂v/∂s_b = a'(r) s_b / r * psi + a * Σ_a ∂psi/∂q_a ∂q_a/∂s_b; then 1/R.
-                    let mut acc = dw_over_r * s[b] * value;
-                    for a in 0..dim {
-                        acc += w * dq[a] * jac[a][b];
+            let sel = &mut self.sel[a * n..(a + 1) * n];
+            if self.sparse {
+                // An index whose value and derivative are both zero on one axis makes every
+                // product through it zero (value and all gradient components): skip it.
+                let mut c = 0;
+                for m in 0..n {
+                    if self.b[a * n + m] != T::zero() || self.db[a * n + m] != T::zero() {
+                        sel[c] = m;
+                        c += 1;
                     }
-                    g[k * dim + b] = acc * self.inv_radius;
+                }
+                count[a] = c;
+            } else {
+                for (m, x) in sel.iter_mut().enumerate() {
+                    *x = m;
+                }
+            }
+        }
+        let (b, db, bn, dbn, sel) = (&self.b, &self.db, &self.bn, &self.dbn, &self.sel);
+        let inv_radius = self.inv_radius;
+        // One axis of the running products `Π b` and their gradients (the same multiplications
+        // in the same order as a product over the axes of one multi-index).
+        let step = |a: usize, m: usize, (v, g): (T, [T; 3]), b: &[T], db: &[T]| -> (T, [T; 3]) {
+            let bv = b[a * n + m];
+            let mut g2 = g;
+            for c in 0..dim {
+                g2[c] *= if c == a { db[a * n + m] } else { bv };
+            }
+            (v * bv, g2)
+        };
+        let mut finish = |k: usize, phi: (T, [T; 3]), phin: (T, [T; 3])| {
+            let (value, dq) = if anti {
+                // psi(s) = phi(m(s)) - phi(-m(s)); d/dq of phi(-q) is -(∇phi)(-q).
+                (phi.0 - phin.0, std::array::from_fn::<T, 3, _>(|a| phi.1[a] + phin.1[a]))
+            } else {
+                phi
+            };
+            let mut g = [T::zero(); 3];
+            if want_grads {
+                for bb in 0..dim {
+                    // ∂v/∂s_b = a'(r) s_b / r * psi + a * Σ_a ∂psi/∂q_a ∂q_a/∂s_b; then 1/R.
+                    let mut acc = dw_over_r * s[bb] * value;
+                    for a in 0..dim {
+                        acc += w * dq[a] * jac[a][bb];
+                    }
+                    g[bb] = acc * inv_radius;
+                }
+            }
+            emit(k, w * value, &g);
+        };
+        let one = (T::one(), [T::one(); 3]);
+        // Multi-index (m0, m1, m2) of a row-major [n; dim] grid, the last axis fastest; axes at
+        // and beyond `dim` are one dummy index (stride 1, factor 1), so `finish` has one call
+        // site (inlined).
+        let stride = |a: usize| if a < dim { n } else { 1 };
+        let (n1, n2) = (stride(1), stride(2));
+        let axis = |a: usize| if a < dim { &sel[a * n..a * n + count[a]] } else { &[0usize][..] };
+        let (sel0, sel1, sel2) = (axis(0), axis(1), axis(2));
+        let step_if = |a: usize, m: usize, acc: (T, [T; 3]), b: &[T], db: &[T]| {
+            if a < dim {
+                step(a, m, acc, b, db)
+            } else {
+                acc
+            }
+        };
+        for &m0 in sel0 {
+            let p0 = step(0, m0, one, b, db);
+            let n0 = if anti { step(0, m0, one, bn, dbn) } else { one };
+            for &m1 in sel1 {
+                let p1 = step_if(1, m1, p0, b, db);
+                let q1 = if anti { step_if(1, m1, n0, bn, dbn) } else { one };
+                for &m2 in sel2 {
+                    let p2 = step_if(2, m2, p1, b, db);
+                    let q2 = if anti { step_if(2, m2, q1, bn, dbn) } else { one };
+                    finish((m0 * n1 + m1) * n2 + m2, p2, q2);
                 }
             }
         }
     }
-}
-
-/// `Π_a b_a[idx_a]` and its gradient over the `dim` axes.
-#[inline]
-fn product<T: Real>(b: &[T], db: &[T], idx: &[usize; 3], dim: usize, n: usize) -> (T, [T; 3]) {
-    let mut value = T::one();
-    let mut grad = [T::one(); 3];
-    for a in 0..dim {
-        let v = b[a * n + idx[a]];
-        value *= v;
-        for (c, g) in grad.iter_mut().enumerate().take(dim) {
-            *g *= if c == a { db[a * n + idx[a]] } else { v };
-        }
-    }
-    (value, grad)
 }

@@ -7,10 +7,17 @@
 //!
 //! How it runs: receivers are processed in blocks; a block gathers `G[i, (k, c)] = Σ_j v_k f_jc`
 //! and multiplies it with the weights as one matrix product (`[rows, K C_in] x [K C_in, C_out]`),
-//! so the inner loops are a gather and a GEMM. The backward pass recomputes `G` block by block
-//! (nothing of size `pairs x K` is stored) and returns the gradients of the features, the
-//! weights and the offsets (hence of positions, through [`crate::graph::PairGraph::offsets`]).
-//! Partial sums are reduced in a fixed order, so results depend on the thread count only.
+//! so the inner loops are a gather and a GEMM. The gather visits only the `2^d` nonzero terms of
+//! a pair for the linear basis (CConv), and for dense bases (all `K` terms nonzero) is one small
+//! register-blocked product `V_i^T F_i` per receiver (its pairs' basis values `[pairs, K]` times
+//! their features `[pairs, C_in]`). The backward pass recomputes `G` block by block (nothing of
+//! size `pairs x K` is stored) and returns the gradients of the features, the weights and the
+//! offsets (hence of positions, through [`crate::graph::PairGraph::offsets`]); for dense bases
+//! its per-pair products are again small products per receiver (`F H_i^T`, `V H_i`, `V^T F`).
+//! The pair loops run as AVX2 + FMA code where the CPU has it (detected at run time), and
+//! prefetch the scattered sender rows ahead.
+//! Partial sums are reduced in a fixed order, so results depend only on the thread count (and,
+//! in the last bits, on whether the CPU has FMA).
 //! Second derivatives are not available (the backward is itself not differentiable).
 //!
 //! ```
@@ -128,19 +135,10 @@ impl Kernel3 for ConvOp {
         let dims = Dims::new(&self.spec, f_shape.dims()[1], w_shape.dims()[2]);
         let g = &*self.graph;
         let work = g.num_pairs() * dims.kc;
+        let fma = fma_available();
         let run = |(b, out_block): (usize, &mut [T]), scratch: &mut Scratch<T>| {
             let rows = block_rows(g, b);
-            gather_block(
-                &mut scratch.filter,
-                g,
-                &dims,
-                rows.clone(),
-                f,
-                d,
-                &mut scratch.gathered,
-                &mut scratch.vals,
-                &mut scratch.fsum,
-            );
+            gather_block(fma, scratch, g, &dims, rows.clone(), f, d);
             let nb = rows.len();
             let gb = Mat::row_major(&scratch.gathered[..nb * dims.kc], dims.kc);
             matmul(
@@ -154,12 +152,22 @@ impl Kernel3 for ConvOp {
                 Threads::Serial,
             );
         };
-        let init = || Scratch::new(&self.spec, &dims);
+        // A few runs of blocks per thread, one scratch each (not one per rayon split: the
+        // buffers are large and fresh allocations cost page faults).
+        let per_run = BLOCK * dims.cout;
         if pbdl_core::threads::parallel(work) {
-            out.par_chunks_mut(BLOCK * dims.cout).enumerate().for_each_init(init, |s, item| run(item, s));
+            let nblocks = g.n_receivers().div_ceil(BLOCK).max(1);
+            let runs = (4 * pbdl_core::threads::count()).clamp(1, nblocks);
+            let blocks_per_run = nblocks.div_ceil(runs);
+            out.par_chunks_mut(blocks_per_run * per_run).enumerate().for_each(|(r, chunk)| {
+                let mut s = Scratch::new(&self.spec, &dims, false);
+                for (b, block) in chunk.chunks_mut(per_run).enumerate() {
+                    run((r * blocks_per_run + b, block), &mut s);
+                }
+            });
         } else {
-            let mut s = init();
-            out.chunks_mut(BLOCK * dims.cout).enumerate().for_each(|item| run(item, &mut s));
+            let mut s = Scratch::new(&self.spec, &dims, false);
+            out.chunks_mut(per_run).enumerate().for_each(|item| run(item, &mut s));
         }
         Ok(())
     }
@@ -208,23 +216,56 @@ impl Dims {
 struct Scratch<T> {
     filter: PairFilter<T>,
     gathered: Vec<T>,
-    vals: Vec<T>,
-    grads: Vec<T>,
     h: Vec<T>,
-    fsum: Vec<T>,
+    /// `H` of one receiver transposed, `[C_in, K]` (dense backward).
+    ht: Vec<T>,
+    /// Filter indices of one pair's terms (sparse filters).
+    idx: Vec<u32>,
+    /// Term values: one pair's (sparse), or `[pairs of a receiver, K]` (dense).
+    vals: Vec<T>,
+    /// Term gradients, `dim` per term, laid out as `vals`.
+    grads: Vec<T>,
+    /// The features of a receiver's pairs, `[pairs, C_in]` (dense).
+    feats: Vec<T>,
+    /// `E = F H^T`, `[pairs, K]` (dense backward).
+    e: Vec<T>,
+    /// `T = V H`, `[pairs, C_in]` (dense backward); one pair's `C_in` (sparse).
     t: Vec<T>,
+    fsum: Vec<T>,
 }
 
 impl<T: Real> Scratch<T> {
-    fn new(spec: &FilterSpec, dims: &Dims) -> Self {
+    fn new(spec: &FilterSpec, dims: &Dims, backward: bool) -> Self {
+        let filter = spec.evaluator();
+        let m = filter.max_terms();
         Scratch {
-            filter: spec.evaluator(),
+            filter,
             gathered: vec![T::zero(); BLOCK * dims.kc],
-            vals: vec![T::zero(); dims.k],
-            grads: vec![T::zero(); dims.k * dims.dim],
-            h: vec![T::zero(); BLOCK * dims.kc],
-            fsum: vec![T::zero(); dims.cin],
+            h: if backward { vec![T::zero(); BLOCK * dims.kc] } else { Vec::new() },
+            ht: if backward { vec![T::zero(); dims.kc] } else { Vec::new() },
+            idx: vec![0; m],
+            vals: vec![T::zero(); m],
+            grads: vec![T::zero(); m * dims.dim],
+            feats: Vec::new(),
+            e: Vec::new(),
             t: vec![T::zero(); dims.cin],
+            fsum: vec![T::zero(); dims.cin],
+        }
+    }
+
+    /// Room for `np` pairs of one receiver in the dense buffers (grown, never shrunk).
+    fn reserve_dense(&mut self, np: usize, dims: &Dims, backward: bool) {
+        let grow = |v: &mut Vec<T>, len: usize| {
+            if v.len() < len {
+                v.resize(len, T::zero());
+            }
+        };
+        grow(&mut self.vals, np * dims.k);
+        grow(&mut self.feats, np * dims.cin);
+        if backward {
+            grow(&mut self.grads, np * dims.k * dims.dim);
+            grow(&mut self.e, np * dims.k);
+            grow(&mut self.t, np * dims.cin);
         }
     }
 }
@@ -234,8 +275,175 @@ fn block_rows(g: &PairGraph, b: usize) -> std::ops::Range<usize> {
     r0..(r0 + BLOCK).min(g.n_receivers())
 }
 
+/// The most pairs of one receiver among `rows`.
+fn max_row_len(g: &PairGraph, rows: std::ops::Range<usize>) -> usize {
+    let ro = g.row_offsets();
+    rows.map(|i| ro[i + 1] - ro[i]).max().unwrap_or(0)
+}
+
+/// Whether the CPU runs the AVX2 + FMA build of the block kernels.
+fn fma_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// `a * b + c`, fused when `FMA` (a libm call unless the CPU feature is enabled, so only
+/// instantiated inside `#[target_feature(enable = "fma")]` functions).
+#[inline(always)]
+fn madd<T: Real, const FMA: bool>(a: T, b: T, c: T) -> T {
+    if FMA {
+        a.mul_add(b, c)
+    } else {
+        a * b + c
+    }
+}
+
+/// Pairs ahead whose sender rows are prefetched (senders are scattered in memory).
+const PREFETCH: usize = 8;
+
+/// Hints the cache to fetch the sender row of pair `p + PREFETCH` (of `data`, `width` values
+/// per sender).
+#[inline(always)]
+fn prefetch_sender<T>(g: &PairGraph, p: usize, data: &[T], width: usize) {
+    if let Some(&j) = g.senders().get(p + PREFETCH) {
+        prefetch_row(data, j as usize, width);
+    }
+}
+
+/// Hints the cache to fetch row `j` of `data` (`width` values per row).
+#[inline(always)]
+fn prefetch_row<T>(data: &[T], j: usize, width: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let row = &data[j * width..(j + 1) * width];
+        for off in (0..std::mem::size_of_val(row)).step_by(64) {
+            // SAFETY: SSE is part of every x86_64 CPU; a prefetch never faults, and the
+            // address lies inside `row` anyway.
+            unsafe {
+                core::arch::x86_64::_mm_prefetch::<{ core::arch::x86_64::_MM_HINT_T0 }>(
+                    row.as_ptr().cast::<i8>().wrapping_add(off),
+                )
+            };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (data, j, width);
+}
+
+/// `dst += v * src`.
+#[inline(always)]
+fn axpy<T: Real, const FMA: bool>(dst: &mut [T], v: T, src: &[T]) {
+    for (o, &x) in dst.iter_mut().zip(src) {
+        *o = madd::<T, FMA>(v, x, *o);
+    }
+}
+
+/// `Σ a_c b_c`.
+#[inline(always)]
+fn dot<T: Real, const FMA: bool>(a: &[T], b: &[T]) -> T {
+    let mut e = T::zero();
+    for (&x, &y) in a.iter().zip(b) {
+        e = madd::<T, FMA>(x, y, e);
+    }
+    e
+}
+
+/// A small matrix product with a register-blocked inner kernel:
+/// `out[r, c] += Σ_l A(r, l) b[l, c]` for `r < m`, `c < n`, `l < len`, where
+/// `A(r, l) = a[r * a_rs + l * a_cs]` and `b` is row-major `[len, n]`, `out` row-major `[m, n]`.
+#[inline(always)]
+fn small_gemm<T: Real, const FMA: bool>(
+    out: &mut [T],
+    a: &[T],
+    a_rs: usize,
+    a_cs: usize,
+    b: &[T],
+    m: usize,
+    len: usize,
+    n: usize,
+) {
+    if std::mem::size_of::<T>() <= 4 {
+        small_gemm_nb::<T, 16, FMA>(out, a, a_rs, a_cs, b, m, len, n)
+    } else {
+        small_gemm_nb::<T, 8, FMA>(out, a, a_rs, a_cs, b, m, len, n)
+    }
+}
+
+#[inline(always)]
+fn small_gemm_nb<T: Real, const NB: usize, const FMA: bool>(
+    out: &mut [T],
+    a: &[T],
+    a_rs: usize,
+    a_cs: usize,
+    b: &[T],
+    m: usize,
+    len: usize,
+    n: usize,
+) {
+    const MR: usize = 4;
+    let nfull = n / NB * NB;
+    let mut r0 = 0;
+    while r0 + MR <= m {
+        for c0 in (0..nfull).step_by(NB) {
+            tile::<T, MR, NB, FMA>(out, a, a_rs, a_cs, b, r0, c0, len, n);
+        }
+        r0 += MR;
+    }
+    for r in r0..m {
+        for c0 in (0..nfull).step_by(NB) {
+            tile::<T, 1, NB, FMA>(out, a, a_rs, a_cs, b, r, c0, len, n);
+        }
+    }
+    if nfull < n {
+        for r in 0..m {
+            for l in 0..len {
+                let av = a[r * a_rs + l * a_cs];
+                let brow = &b[l * n + nfull..(l + 1) * n];
+                axpy::<T, FMA>(&mut out[r * n + nfull..(r + 1) * n], av, brow);
+            }
+        }
+    }
+}
+
+/// `R x NB` block of [`small_gemm`] at row `r0`, column `c0`, held in registers over `l`.
+#[inline(always)]
+fn tile<T: Real, const R: usize, const NB: usize, const FMA: bool>(
+    out: &mut [T],
+    a: &[T],
+    a_rs: usize,
+    a_cs: usize,
+    b: &[T],
+    r0: usize,
+    c0: usize,
+    len: usize,
+    n: usize,
+) {
+    let mut acc = [[T::zero(); NB]; R];
+    for l in 0..len {
+        let brow: &[T; NB] = b[l * n + c0..l * n + c0 + NB].try_into().expect("NB columns");
+        for r in 0..R {
+            let av = a[(r0 + r) * a_rs + l * a_cs];
+            for c in 0..NB {
+                acc[r][c] = madd::<T, FMA>(av, brow[c], acc[r][c]);
+            }
+        }
+    }
+    for r in 0..R {
+        let o = &mut out[(r0 + r) * n + c0..(r0 + r) * n + c0 + NB];
+        for c in 0..NB {
+            o[c] += acc[r][c];
+        }
+    }
+}
+
 /// The features a pair brings: `f_j`, or `f_i + f_j` for the antisymmetric filter.
-#[inline]
+#[inline(always)]
 fn pair_features<'a, T: Real>(f: &'a [T], i: usize, j: usize, dims: &Dims, fsum: &'a mut [T]) -> &'a [T] {
     let fj = &f[j * dims.cin..(j + 1) * dims.cin];
     if !dims.anti {
@@ -248,37 +456,88 @@ fn pair_features<'a, T: Real>(f: &'a [T], i: usize, j: usize, dims: &Dims, fsum:
     fsum
 }
 
-/// `G[i - r0, k * C_in + c] = Σ_p v_k(d_p) feat_p[c]` for the receivers `rows`.
-#[allow(clippy::too_many_arguments)]
+/// `G[i - r0, k * C_in + c] = Σ_p v_k(d_p) feat_p[c]` for the receivers `rows`, into
+/// `s.gathered`: per pair over its nonzero terms (sparse filters), or per receiver as the
+/// product `V^T F` of its pairs' values `[pairs, K]` and features `[pairs, C_in]` (dense).
 fn gather_block<T: Real>(
-    filter: &mut PairFilter<T>,
+    fma: bool,
+    s: &mut Scratch<T>,
     g: &PairGraph,
     dims: &Dims,
     rows: std::ops::Range<usize>,
     f: &[T],
     d: &[T],
-    gathered: &mut [T],
-    vals: &mut [T],
-    fsum: &mut [T],
 ) {
-    let r0 = rows.start;
-    gathered[..rows.len() * dims.kc].fill(T::zero());
+    #[cfg(target_arch = "x86_64")]
+    if fma {
+        // SAFETY: `fma` is `fma_available()`: the CPU supports AVX2 and FMA.
+        unsafe { gather_block_avx2(s, g, dims, rows, f, d) };
+        return;
+    }
+    let _ = fma;
+    gather_block_impl::<T, false>(s, g, dims, rows, f, d)
+}
+
+/// [`gather_block_impl`] compiled for AVX2 with fused multiply-adds.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn gather_block_avx2<T: Real>(
+    s: &mut Scratch<T>,
+    g: &PairGraph,
+    dims: &Dims,
+    rows: std::ops::Range<usize>,
+    f: &[T],
+    d: &[T],
+) {
+    gather_block_impl::<T, true>(s, g, dims, rows, f, d)
+}
+
+#[inline(always)]
+fn gather_block_impl<T: Real, const FMA: bool>(
+    s: &mut Scratch<T>,
+    g: &PairGraph,
+    dims: &Dims,
+    rows: std::ops::Range<usize>,
+    f: &[T],
+    d: &[T],
+) {
+    let (r0, kc, cin, dim) = (rows.start, dims.kc, dims.cin, dims.dim);
+    s.gathered[..rows.len() * kc].fill(T::zero());
+    let sparse = s.filter.is_sparse();
+    if !sparse {
+        s.reserve_dense(max_row_len(g, rows.clone()), dims, false);
+    }
     for i in rows {
-        let row = &mut gathered[(i - r0) * dims.kc..(i - r0 + 1) * dims.kc];
-        for p in g.row_offsets()[i]..g.row_offsets()[i + 1] {
-            let j = g.senders()[p] as usize;
-            filter.values(&d[p * dims.dim..(p + 1) * dims.dim], vals);
-            let feat = pair_features(f, i, j, dims, fsum);
-            for k in 0..dims.k {
-                let v = vals[k];
-                if v == T::zero() {
-                    continue;
-                }
-                let dst = &mut row[k * dims.cin..(k + 1) * dims.cin];
-                for c in 0..dims.cin {
-                    dst[c] += v * feat[c];
+        let row = &mut s.gathered[(i - r0) * kc..(i - r0 + 1) * kc];
+        let pairs = g.row_offsets()[i]..g.row_offsets()[i + 1];
+        if sparse {
+            for p in pairs {
+                prefetch_sender(g, p, f, cin);
+                let j = g.senders()[p] as usize;
+                let m = s.filter.terms(&d[p * dim..(p + 1) * dim], &mut s.idx, &mut s.vals, None);
+                let feat = pair_features(f, i, j, dims, &mut s.fsum);
+                for t in 0..m {
+                    let k = s.idx[t] as usize;
+                    axpy::<T, FMA>(&mut row[k * cin..(k + 1) * cin], s.vals[t], feat);
                 }
             }
+        } else {
+            let np = pairs.len();
+            let p0 = pairs.start;
+            for p in pairs {
+                prefetch_sender(g, p, f, cin);
+                let (q, j) = (p - p0, g.senders()[p] as usize);
+                s.filter.terms(&d[p * dim..(p + 1) * dim], &mut s.idx, &mut s.vals[q * dims.k..(q + 1) * dims.k], None);
+                let feat = pair_features(f, i, j, dims, &mut s.fsum);
+                for (o, &x) in s.feats[q * cin..(q + 1) * cin].iter_mut().zip(feat) {
+                    *o = x;
+                }
+            }
+            // G_i[k, c] += Σ_q V[q, k] F[q, c].
+            small_gemm::<T, FMA>(row, &s.vals, 1, dims.k, &s.feats, dims.k, np, cin);
         }
     }
 }
@@ -337,12 +596,13 @@ impl Kernel3 for ConvBackward {
             gd_rest = tail;
             pair_start = pair_end;
         }
+        let fma = fma_available();
         let run = |(blocks, p0, gd): (std::ops::Range<usize>, usize, &mut [T])| {
             let mut gf = vec![T::zero(); f.len()];
             let mut gw = vec![T::zero(); nw];
-            let mut s = Scratch::new(&self.spec, &dims);
+            let mut s = Scratch::new(&self.spec, &dims, true);
             for b in blocks {
-                backward_block(&mut s, g, &dims, block_rows(g, b), f, d, w, gy, &mut gf, &mut gw, gd, p0);
+                backward_block(fma, &mut s, g, &dims, block_rows(g, b), f, d, w, gy, &mut gf, &mut gw, gd, p0);
             }
             (gf, gw)
         };
@@ -364,6 +624,7 @@ impl Kernel3 for ConvBackward {
 /// gradient, and `G^T gy` into the weight gradient.
 #[allow(clippy::too_many_arguments)]
 fn backward_block<T: Real>(
+    fma: bool,
     s: &mut Scratch<T>,
     g: &PairGraph,
     dims: &Dims,
@@ -377,7 +638,7 @@ fn backward_block<T: Real>(
     gd: &mut [T],
     p0: usize,
 ) {
-    let (r0, nb, kc, cin, dim) = (rows.start, rows.len(), dims.kc, dims.cin, dims.dim);
+    let (r0, nb, kc) = (rows.start, rows.len(), dims.kc);
     if nb == 0 {
         return;
     }
@@ -394,44 +655,17 @@ fn backward_block<T: Real>(
         Threads::Serial,
     );
     s.gathered[..nb * kc].fill(T::zero());
-    for i in rows {
-        let h = &s.h[(i - r0) * kc..(i - r0 + 1) * kc];
-        let grow = &mut s.gathered[(i - r0) * kc..(i - r0 + 1) * kc];
-        for p in g.row_offsets()[i]..g.row_offsets()[i + 1] {
-            let j = g.senders()[p] as usize;
-            s.filter.values_and_grads(&d[p * dim..(p + 1) * dim], &mut s.vals, &mut s.grads);
-            let feat = pair_features(f, i, j, dims, &mut s.fsum);
-            s.t.fill(T::zero());
-            let mut gdp = [T::zero(); 3];
-            for k in 0..dims.k {
-                let v = s.vals[k];
-                let dv = &s.grads[k * dim..(k + 1) * dim];
-                if v == T::zero() && dv.iter().all(|&x| x == T::zero()) {
-                    continue;
-                }
-                let hk = &h[k * cin..(k + 1) * cin];
-                let mut e = T::zero();
-                let dst = &mut grow[k * cin..(k + 1) * cin];
-                for c in 0..cin {
-                    e += feat[c] * hk[c];
-                    s.t[c] += v * hk[c];
-                    dst[c] += v * feat[c];
-                }
-                for a in 0..dim {
-                    gdp[a] += dv[a] * e;
-                }
-            }
-            let q = p - p0;
-            gd[q * dim..(q + 1) * dim].copy_from_slice(&gdp[..dim]);
-            for c in 0..cin {
-                gf[j * cin + c] += s.t[c];
-            }
-            if dims.anti {
-                for c in 0..cin {
-                    gf[i * cin + c] += s.t[c];
-                }
-            }
-        }
+    #[cfg(target_arch = "x86_64")]
+    if fma {
+        // SAFETY: `fma` is `fma_available()`: the CPU supports AVX2 and FMA.
+        unsafe { backward_pairs_avx2(s, g, dims, rows, f, d, gf, gd, p0) };
+    } else {
+        backward_pairs::<T, false>(s, g, dims, rows, f, d, gf, gd, p0);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = fma;
+        backward_pairs::<T, false>(s, g, dims, rows, f, d, gf, gd, p0);
     }
     // grad W += G^T gy_block.
     matmul(
@@ -444,4 +678,154 @@ fn backward_block<T: Real>(
         T::one(),
         Threads::Serial,
     );
+}
+
+/// [`backward_pairs`] compiled for AVX2 with fused multiply-adds.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn backward_pairs_avx2<T: Real>(
+    s: &mut Scratch<T>,
+    g: &PairGraph,
+    dims: &Dims,
+    rows: std::ops::Range<usize>,
+    f: &[T],
+    d: &[T],
+    gf: &mut [T],
+    gd: &mut [T],
+    p0: usize,
+) {
+    backward_pairs::<T, true>(s, g, dims, rows, f, d, gf, gd, p0)
+}
+
+/// The pair loop of one block's backward pass, with `s.h` holding `H` of the block: per pair
+/// `e_k = feat · H_i[k]` (offset gradient `Σ_k ∇v_k e_k`), `t = Σ_k v_k H_i[k]` (feature
+/// gradient of the sender, and of the receiver when antisymmetric), and `G` recomputed into
+/// `s.gathered`. Sparse filters loop over each pair's nonzero terms; dense ones do the three
+/// products per receiver as small matrix products over its pairs.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn backward_pairs<T: Real, const FMA: bool>(
+    s: &mut Scratch<T>,
+    g: &PairGraph,
+    dims: &Dims,
+    rows: std::ops::Range<usize>,
+    f: &[T],
+    d: &[T],
+    gf: &mut [T],
+    gd: &mut [T],
+    p0: usize,
+) {
+    let (r0, kc, cin, dim, k_len) = (rows.start, dims.kc, dims.cin, dims.dim, dims.k);
+    let sparse = s.filter.is_sparse();
+    if !sparse {
+        s.reserve_dense(max_row_len(g, rows.clone()), dims, true);
+    }
+    for i in rows {
+        let h = &s.h[(i - r0) * kc..(i - r0 + 1) * kc];
+        let grow = &mut s.gathered[(i - r0) * kc..(i - r0 + 1) * kc];
+        let pairs = g.row_offsets()[i]..g.row_offsets()[i + 1];
+        if sparse {
+            for p in pairs {
+                prefetch_sender(g, p, f, cin);
+                prefetch_sender(g, p, gf, cin);
+                let j = g.senders()[p] as usize;
+                let m = s.filter.terms(&d[p * dim..(p + 1) * dim], &mut s.idx, &mut s.vals, Some(&mut s.grads));
+                let feat = pair_features(f, i, j, dims, &mut s.fsum);
+                let tv = &mut s.t[..cin];
+                tv.fill(T::zero());
+                let mut gdp = [T::zero(); 3];
+                for t in 0..m {
+                    let k = s.idx[t] as usize;
+                    let v = s.vals[t];
+                    let dv = &s.grads[t * dim..(t + 1) * dim];
+                    let hk = &h[k * cin..(k + 1) * cin];
+                    let e = dot::<T, FMA>(feat, hk);
+                    axpy::<T, FMA>(tv, v, hk);
+                    axpy::<T, FMA>(&mut grow[k * cin..(k + 1) * cin], v, feat);
+                    for a in 0..dim {
+                        gdp[a] += dv[a] * e;
+                    }
+                }
+                let q = p - p0;
+                for a in 0..dim {
+                    gd[q * dim + a] = gdp[a];
+                }
+                for c in 0..cin {
+                    gf[j * cin + c] += tv[c];
+                }
+                if dims.anti {
+                    for c in 0..cin {
+                        gf[i * cin + c] += tv[c];
+                    }
+                }
+            }
+        } else {
+            let np = pairs.len();
+            if np == 0 {
+                continue;
+            }
+            let pstart = pairs.start;
+            for p in pairs.clone() {
+                prefetch_sender(g, p, f, cin);
+                let (q, j) = (p - pstart, g.senders()[p] as usize);
+                // Its feature-gradient row is written after the products below.
+                prefetch_row(gf, j, cin);
+                s.filter.terms(
+                    &d[p * dim..(p + 1) * dim],
+                    &mut s.idx,
+                    &mut s.vals[q * k_len..(q + 1) * k_len],
+                    Some(&mut s.grads[q * k_len * dim..(q + 1) * k_len * dim]),
+                );
+                let feat = pair_features(f, i, j, dims, &mut s.fsum);
+                for (o, &x) in s.feats[q * cin..(q + 1) * cin].iter_mut().zip(feat) {
+                    *o = x;
+                }
+            }
+            let (vals, feats) = (&s.vals[..np * k_len], &s.feats[..np * cin]);
+            // H_i^T, [C_in, K].
+            for k in 0..k_len {
+                for c in 0..cin {
+                    s.ht[c * k_len + k] = h[k * cin + c];
+                }
+            }
+            // E[q, k] = Σ_c F[q, c] H_i[k, c].
+            let e = &mut s.e[..np * k_len];
+            e.fill(T::zero());
+            small_gemm::<T, FMA>(e, feats, cin, 1, &s.ht, np, cin, k_len);
+            // T[q, c] = Σ_k V[q, k] H_i[k, c].
+            let tm = &mut s.t[..np * cin];
+            tm.fill(T::zero());
+            small_gemm::<T, FMA>(tm, vals, k_len, 1, h, np, k_len, cin);
+            // G_i[k, c] += Σ_q V[q, k] F[q, c].
+            small_gemm::<T, FMA>(grow, vals, 1, k_len, feats, k_len, np, cin);
+            for p in pairs {
+                let (q, j) = (p - pstart, g.senders()[p] as usize);
+                let mut gdp = [T::zero(); 3];
+                let dv = &s.grads[q * k_len * dim..(q + 1) * k_len * dim];
+                let eq = &e[q * k_len..(q + 1) * k_len];
+                for k in 0..k_len {
+                    for a in 0..dim {
+                        gdp[a] += dv[k * dim + a] * eq[k];
+                    }
+                }
+                let qq = p - p0;
+                for a in 0..dim {
+                    gd[qq * dim + a] = gdp[a];
+                }
+                let tq = &tm[q * cin..(q + 1) * cin];
+                for c in 0..cin {
+                    gf[j * cin + c] += tq[c];
+                }
+                if dims.anti {
+                    for c in 0..cin {
+                        gf[i * cin + c] += tq[c];
+                    }
+                }
+            }
+        }
+    }
 }
