@@ -16,6 +16,7 @@
 //! | [`op`] | [`continuous_conv`]: the convolution as a custom op (block gather + GEMM), backward for features, weights, offsets |
 //! | [`layer`] | [`ContinuousConv`]: a layer with its weights in a `VarMap` (seeded init) and an optional bias |
 //! | [`net`] | [`net::BasisNetwork`]: SFBC's network (convolution + dense branch per layer, ReLU, output scale), optional antisymmetric last layer |
+//! | [`liquid`] | CConv's liquid network (Ummenhofer et al. 2020) in 2D at CPU size: dam-break data from our WCSPH, two-step training, long rollouts against SPH with stability checks and a GIF |
 //! | [`periodic_case`] | SFBC's test cases I (periodic 1D compressible SPH) and II (periodic 2D weakly compressible SPH) at CPU size: data from pbdl-particles, density / density-gradient / update tasks, training (resumable), test errors, rollouts, momentum drift |
 //! | [`error`] | [`Error`], [`Result`] |
 //!
@@ -46,6 +47,7 @@ pub mod error;
 pub mod filter;
 pub mod graph;
 pub mod layer;
+pub mod liquid;
 pub mod mapping;
 pub mod net;
 pub mod op;
