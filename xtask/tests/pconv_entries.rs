@@ -20,6 +20,10 @@ fn quick_tour_and_stress_entries_run() {
         assert!(error("fourier_even") >= 0.9, "{:?}", out.rows);
         assert!(error("fourier") < error("fourier_even"), "{:?}", out.rows);
     }
+    let bench = tasks.bench.iter().find(|e| e.name == "bases_time_vs_error").unwrap();
+    let rows = (bench.run)(&ctx).unwrap();
+    assert_eq!(rows.len(), 14);
+    assert!(rows.iter().all(|r| r.seconds > 0.0 && r.error.is_some_and(f64::is_finite)), "{rows:?}");
     // The rollout's stability (finite, speed growth) is what the stress run measures and
     // reports (the briefly trained network is not stable over 100 frames); the conservation is
     // the method's guarantee and must hold whatever the speeds do.

@@ -2,6 +2,7 @@
 //! against the analytic kernel gradient), and a long rollout of a momentum-conserving
 //! (antisymmetric) update network.
 
+use crate::bench_schema::BenchRow;
 use crate::registry::{CrateTasks, Entry, StressCheck, StressMeasure, TaskContext, TaskResult, TourOutcome, TourRow};
 use pbdl_core::viz::{line_plot, PlotStyle, Series};
 use pbdl_pconv::periodic_case::{
@@ -18,7 +19,11 @@ pub fn tasks() -> CrateTasks {
             about: "SFBC test case I (small): one continuous convolution per basis learns the SPH density gradient (an odd function of the offset) on periodic 1D compressible SPH; the learned filters against the analytic one (PNG) and held-out errors: the even-only Fourier basis cannot represent it.",
             run: tour_symmetry,
         }],
-        bench: vec![],
+        bench: vec![Entry {
+            name: "bases_time_vs_error",
+            about: "SFBC test case I (small: 256 particles, 3 + 1 simulations): every basis trained on the density gradient and the velocity update (quick: 150 steps, full: 1000); the network's median time per held-out frame against its held-out relative MSE.",
+            run: bench_bases_time_vs_error,
+        }],
         stress: vec![Entry {
             name: "antisymmetric_long_rollout",
             about: "An update network with an antisymmetric last layer (DMCF), trained briefly on test case I, rolled out 1000 frames (quick: 100) beyond its data: finite, momentum conserved to f32 round-off (drift <= 1e-5 of the initial total |v| plus the impulses applied), speeds within 10x the initial maximum.",
@@ -81,6 +86,30 @@ fn tour_symmetry(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     line_plot(&path, &series, &style)?;
     md.push_str("\n![learned filters](sfbc_symmetry.png)\n");
     Ok(TourOutcome { rows, files: vec![path], markdown: md })
+}
+
+fn bench_bases_time_vs_error(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    let data = Dataset::generate(&CaseConfig::small(CaseKind::Compressible1d))?;
+    let steps = if ctx.quick { 150 } else { 1000 };
+    let mut rows = Vec::new();
+    for task in [Task::DensityGradient, Task::Update] {
+        for basis in Basis::ALL {
+            let train = TrainConfig { steps, ..TrainConfig::for_task(task) };
+            let r = train_case(&data, task, basis, &train, 0, None)?.result;
+            rows.push(BenchRow {
+                case: format!("sfbc_case1_{}", task.name()),
+                method: format!("pbdl_{}", basis.name()),
+                size: format!("n{}_steps{steps}", data.config.particles),
+                seconds: r.forward_seconds,
+                unit: "network evaluation per frame".into(),
+                error: Some(r.test_rel_mse),
+                error_kind: "held_out_rel_mse".into(),
+                peer: false,
+                threads: ctx.threads,
+            });
+        }
+    }
+    Ok(rows)
 }
 
 fn stress_antisymmetric_rollout(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
