@@ -128,6 +128,25 @@ pub enum Error {
         /// The shape the caller expects.
         expected: Vec<usize>,
     },
+    /// A run directory holds a run started with other settings than those given to resume it
+    /// (see [`crate::train::check_resume`]); nothing was loaded.
+    #[error(
+        "{}: the run in this directory was started with `{field}` = {stored}, this call has {given}; \
+         use a new run directory, or resume with the same settings as the run",
+        dir.display()
+    )]
+    ResumeMismatch {
+        /// The run directory (boxed so that the variant stays smaller than
+        /// [`Error::TensorShape`] and `Error` keeps its size; `.into()` gives a `PathBuf`).
+        dir: Box<std::path::Path>,
+        /// The first differing setting, as a dotted path into the checkpoint's recorded config
+        /// (e.g. `train.lr`, `data.re[1]`, `trainer`).
+        field: String,
+        /// Its value in the run directory (JSON).
+        stored: String,
+        /// Its value in this call (JSON).
+        given: String,
+    },
     /// An error from candle.
     #[error(transparent)]
     Candle(#[from] candle_core::Error),

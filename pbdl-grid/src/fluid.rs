@@ -369,6 +369,16 @@ impl Fluid {
         &self.operators
     }
 
+    /// The grid.
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// The velocity boundary conditions.
+    pub fn boundaries(&self) -> &Boundaries {
+        &self.bc
+    }
+
     /// The configuration.
     pub fn config(&self) -> &FluidConfig {
         &self.config
@@ -445,30 +455,7 @@ impl Fluid {
             });
         }
         let dt = self.config.dt;
-        let density = match (&state.density, self.density_bc) {
-            (Some(rho), Some(_)) => {
-                let mut r = match self.config.density_advection {
-                    Advection::Conservative => conservative(rho, u, dt)?,
-                    scheme => advect(rho, u, dt, scheme)?,
-                };
-                if let Some(src) = &self.source {
-                    let rate = inflow_rate.ok_or_else(|| Error::Invalid {
-                        field: "inflow_rate",
-                        reason: "the stepper has an inflow; pass its rate".into(),
-                    })?;
-                    r = src.apply(&r, rate, dt)?;
-                }
-                Some(r)
-            }
-            (None, None) => None,
-            _ => {
-                return Err(Error::Invalid {
-                    field: "density",
-                    reason: "the state's density does not match the stepper (built with density boundaries or not)"
-                        .into(),
-                })
-            }
-        };
+        let density = self.transported_density(state, inflow_rate)?;
         // The force of the old density (explicit in time, as in PhiFlow's plume).
         let force = match (self.config.buoyancy, &state.density) {
             (Some(beta), Some(rho)) => Some(buoyancy(rho, &self.bc, beta)?.into_values()),
@@ -493,8 +480,44 @@ impl Fluid {
             let v = projected_runge_kutta(u.values(), dt, &ButcherTableau::rk4(), f, p)?;
             return Ok(FluidState { velocity: MacField::from_parts(v, self.grid, self.bc), density });
         }
+        let v = self.velocity_before_projection(u, force.as_ref())?;
+        Ok(FluidState { velocity: self.project(&v)?, density })
+    }
+
+    /// The density after transport and inflow (`None` without a density).
+    fn transported_density(&self, state: &FluidState, inflow_rate: Option<&Tensor>) -> Result<Option<CenteredField>> {
+        let (u, dt) = (&state.velocity, self.config.dt);
+        Ok(match (&state.density, self.density_bc) {
+            (Some(rho), Some(_)) => {
+                let mut r = match self.config.density_advection {
+                    Advection::Conservative => conservative(rho, u, dt)?,
+                    scheme => advect(rho, u, dt, scheme)?,
+                };
+                if let Some(src) = &self.source {
+                    let rate = inflow_rate.ok_or_else(|| Error::Invalid {
+                        field: "inflow_rate",
+                        reason: "the stepper has an inflow; pass its rate".into(),
+                    })?;
+                    r = src.apply(&r, rate, dt)?;
+                }
+                Some(r)
+            }
+            (None, None) => None,
+            _ => {
+                return Err(Error::Invalid {
+                    field: "density",
+                    reason: "the state's density does not match the stepper (built with density boundaries or not)"
+                        .into(),
+                })
+            }
+        })
+    }
+
+    /// Advection, buoyancy, viscosity and velocity source: the velocity before the projection.
+    fn velocity_before_projection(&self, u: &MacField, force: Option<&Tensor>) -> Result<MacField> {
+        let dt = self.config.dt;
         let mut v = advect(u, u, dt, self.config.advection)?;
-        if let Some(f) = &force {
+        if let Some(f) = force {
             v = v.with_values((v.values() + f.affine(dt, 0.0)?)?)?;
         }
         if let Some(visc) = &self.viscosity {
@@ -503,7 +526,124 @@ impl Fluid {
         if let Some(src) = &self.velocity_source {
             v = src.apply(&v, None)?;
         }
-        Ok(FluidState { velocity: self.project(&v)?, density })
+        Ok(v)
+    }
+
+    /// The pressure split of [`Fluid::step`], for steppers that replace the pressure solve on
+    /// some steps (latent-space physics): everything of one step before the projection
+    /// (density transport and inflow, velocity advection, buoyancy, viscosity, velocity
+    /// source). [`Fluid::step`] equals [`Fluid::project_keep_pressure`] of this state's velocity.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for a stepper with more than one projection per step (central RK4
+    /// velocity advection projects after every stage; the immersed boundary alternates forcing
+    /// and projection), and as [`Fluid::step`].
+    pub fn step_unprojected(&self, state: &FluidState, inflow_rate: Option<&Tensor>) -> Result<FluidState> {
+        self.check_single_projection()?;
+        let u = &state.velocity;
+        if u.grid() != &self.grid || u.bc() != &self.bc {
+            return Err(Error::Invalid {
+                field: "velocity",
+                reason: "lives on another grid or boundaries than the stepper".into(),
+            });
+        }
+        let density = self.transported_density(state, inflow_rate)?;
+        let force = match (self.config.buoyancy, &state.density) {
+            (Some(beta), Some(rho)) => Some(buoyancy(rho, &self.bc, beta)?.into_values()),
+            _ => None,
+        };
+        Ok(FluidState { velocity: self.velocity_before_projection(u, force.as_ref())?, density })
+    }
+
+    /// The projection of [`Fluid::step`] that also returns its pressure (cell-centred,
+    /// `[B, 1, ny, nx]`, in the units of the solve: `u <- u - G p`, so `p` is the physical
+    /// pressure times `dt / density`). Not differentiable.
+    ///
+    /// # Errors
+    /// As [`Fluid::step_unprojected`]; [`Error::Invalid`] when `u` lives on another grid.
+    pub fn project_keep_pressure(&self, u: &MacField) -> Result<(MacField, CenteredField)> {
+        let (v, p) = match u.values().dtype() {
+            candle_core::DType::F32 => self.pressure_split::<f32>(u, None)?,
+            _ => self.pressure_split::<f64>(u, None)?,
+        };
+        Ok((v, p.expect("the solve returns its pressure")))
+    }
+
+    /// The velocity correction of [`Fluid::step`] with a given pressure (e.g. a predicted one)
+    /// instead of a solve: `m u - m G p` (+ prescribed faces), the boundary faces set as the
+    /// projection sets them. With the pressure of [`Fluid::project_keep_pressure`] it equals
+    /// that projection. Not differentiable.
+    ///
+    /// # Errors
+    /// As [`Fluid::project_keep_pressure`]; [`Error::Invalid`] when `pressure` is not
+    /// `[B, 1, ny, nx]` for `u`'s batch `B`.
+    pub fn correct_with_pressure(&self, u: &MacField, pressure: &CenteredField) -> Result<MacField> {
+        let b = u.values().dims().first().copied().unwrap_or(0);
+        let pd = pressure.values().dims();
+        if pd != [b, 1, self.grid.ny, self.grid.nx] {
+            return Err(Error::Invalid {
+                field: "pressure",
+                reason: format!("has shape {pd:?}; the velocity needs [{b}, 1, {}, {}]", self.grid.ny, self.grid.nx),
+            });
+        }
+        Ok(match u.values().dtype() {
+            candle_core::DType::F32 => self.pressure_split::<f32>(u, Some(pressure.values()))?.0,
+            _ => self.pressure_split::<f64>(u, Some(pressure.values()))?.0,
+        })
+    }
+
+    /// The projection in `T` (the velocity's dtype, so that it equals [`Fluid::step`]'s to the
+    /// bit): with `given` the correction by that pressure, else the solve, returning its pressure.
+    fn pressure_split<T: pbdl_core::Real>(
+        &self,
+        u: &MacField,
+        given: Option<&Tensor>,
+    ) -> Result<(MacField, Option<CenteredField>)> {
+        self.check_single_projection()?;
+        if u.grid() != &self.grid || u.bc() != &self.bc {
+            return Err(Error::Invalid {
+                field: "velocity",
+                reason: "lives on another grid or boundaries than the stepper".into(),
+            });
+        }
+        let (dev, dtype) = (u.values().device(), u.values().dtype());
+        let shape = u.values().shape().clone();
+        let x: Vec<T> = u.values().to_dtype(T::DTYPE)?.flatten_all()?.to_vec1::<T>()?;
+        let b = shape.dims()[0];
+        let mut out = vec![T::zero(); x.len()];
+        let pressure = match given {
+            Some(p) => {
+                let p: Vec<T> = p.to_dtype(T::DTYPE)?.flatten_all()?.to_vec1::<T>()?;
+                match &self.projection {
+                    Proj::Plain(proj) => proj.correct(&x, &p, &mut out),
+                    Proj::Masked(proj) => proj.correct(&x, &p, &mut out),
+                }
+                None
+            }
+            None => {
+                let mut p = vec![T::zero(); b * self.grid.cells()];
+                match &self.projection {
+                    Proj::Plain(proj) => proj.project_keep_pressure(&x, &mut out, &mut p),
+                    Proj::Masked(proj) => proj.project_keep_pressure(&x, &mut out, &mut p),
+                }
+                let p = Tensor::from_vec(p, (b, 1, self.grid.ny, self.grid.nx), dev)?.to_dtype(dtype)?;
+                Some(CenteredField::new(p, self.grid, self.bc.pressure())?)
+            }
+        };
+        let v = Tensor::from_vec(out, shape, dev)?.to_dtype(dtype)?;
+        Ok((MacField::from_parts(v, self.grid, self.bc), pressure))
+    }
+
+    fn check_single_projection(&self) -> Result<()> {
+        if self.rhs.is_some() || self.immersed.is_some() {
+            return Err(Error::Invalid {
+                field: "pressure split",
+                reason: "this stepper projects more than once per step (central RK4 or immersed boundary); use \
+                         semi_lagrangian or mac_cormack velocity advection and staircase obstacles"
+                    .into(),
+            });
+        }
+        Ok(())
     }
 }
 

@@ -22,7 +22,9 @@ pub enum Error {
         /// Where.
         detail: String,
     },
-    /// From pbdl-core (IO, checkpoints, training loop).
+    /// From pbdl-core (IO, checkpoints, training loop, and
+    /// [`pbdl_core::Error::ResumeMismatch`]: a run directory started with other settings,
+    /// naming the first differing one).
     #[error(transparent)]
     Core(#[from] pbdl_core::Error),
     /// From pbdl-particles (neighbour search, SPH data).

@@ -36,13 +36,12 @@ use crate::net::{BasisNetwork, NetworkConfig};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::VarMap;
 use pbdl_core::io::CheckpointMeta;
-use pbdl_core::train::{AdamConfig, LoopConfig, OptimizerConfig, TrainLoop};
+use pbdl_core::train::{canonical, check_resume, AdamConfig, LoopConfig, OptimizerConfig, TrainLoop};
 use pbdl_particles::kernels::{Kernel, KernelKind};
 use pbdl_particles::scene::Scene;
 use pbdl_particles::{Domain, Evolve};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
-use std::io::Write as _;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -560,7 +559,8 @@ pub fn train_and_evaluate(
     train_and_evaluate_in(data, task, basis, train, seed, None)
 }
 
-/// What a run directory was started with; a resumed run must match it.
+/// What a run directory was started with, stored in every checkpoint's
+/// [`CheckpointMeta::config`]; a resumed run must match it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 struct RunSettings {
     data: CaseConfig,
@@ -570,37 +570,13 @@ struct RunSettings {
     seed: u64,
 }
 
-/// Writes `settings.json` into a new run directory, or checks a resumed one against it.
-fn check_run_dir(dir: &Path, settings: &RunSettings) -> Result<()> {
-    let path = dir.join("settings.json");
-    let io = |e: std::io::Error| Error::Io { path: path.display().to_string(), source: e };
-    if path.exists() {
-        let text = std::fs::read_to_string(&path).map_err(io)?;
-        let old: RunSettings = serde_json::from_str(&text).map_err(|e| Error::Config {
-            field: "run_dir",
-            reason: format!("{}: unreadable settings ({e}); use a new directory", path.display()),
-        })?;
-        if &old != settings {
-            return Err(Error::Config {
-                field: "run_dir",
-                reason: format!(
-                    "{} was started with other settings ({old:?}); use a new directory or the same settings",
-                    dir.display()
-                ),
-            });
-        }
-        return Ok(());
-    }
-    std::fs::create_dir_all(dir).map_err(io)?;
-    let json = serde_json::to_vec_pretty(settings).expect("settings serialise");
-    pbdl_core::io::write_atomic(&path, |w| w.write_all(&json))?;
-    Ok(())
-}
-
 /// [`train_and_evaluate`] with a run directory: checkpoints (weights and Adam's state) every
 /// tenth of the steps and `loss.csv` there, a progress bar, and resumption of a stopped run.
-/// The directory's `settings.json` records the data, task, basis, training settings and seed;
-/// resuming with other ones is an [`Error::Config`] naming `run_dir`.
+/// Each checkpoint's sidecar records the data, task, basis, training settings and seed (as its
+/// [`CheckpointMeta::config`]); resuming with other ones is refused by
+/// [`pbdl_core::train::check_resume`] before anything is loaded, an [`Error::Core`] holding
+/// [`pbdl_core::Error::ResumeMismatch`] that names the first differing setting (e.g. `basis`,
+/// `train.lr`), and so is asking for fewer steps than the directory holds.
 pub fn train_and_evaluate_in(
     data: &Dataset,
     task: Task,
@@ -634,8 +610,13 @@ pub fn train_case(
     seed: u64,
     run_dir: Option<&Path>,
 ) -> Result<TrainedCase> {
+    let settings = RunSettings { data: data.config.clone(), task, basis, train: train.clone(), seed };
+    let config = canonical(serde_json::to_value(&settings).map_err(|e| Error::Config {
+        field: "run_dir",
+        reason: format!("the run settings do not serialise ({e})"),
+    })?)?;
     if let Some(dir) = run_dir {
-        check_run_dir(dir, &RunSettings { data: data.config.clone(), task, basis, train: train.clone(), seed })?;
+        check_resume(dir, &config, train.steps)?;
     }
     let scales = scales(data, task)?;
     let samples = |sims: &[Simulation]| -> Result<Vec<Sample>> {
@@ -671,28 +652,33 @@ pub fn train_case(
     let start = std::time::Instant::now();
     let train_loop = TrainLoop::resume(&varmap, cfg)?;
     let start_step = train_loop.start();
-    let report = train_loop.run::<Error>(&adam, lr, CheckpointMeta::at, |step| {
-        // The frames of an update drawn from the seed and the step (resumable, reproducible).
-        let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(seed, step));
-        let mut loss: Option<Tensor> = None;
-        for _ in 0..train.batch.max(1) {
-            let l = if unroll > 1 {
-                let sim = &data.train[rng.random_range(0..data.train.len())];
-                let t = rng.random_range(0..sim.frames.len() - unroll);
-                unrolled_loss(data, &net, &scales, sim, t, unroll)?
-            } else {
-                let s = &train_samples[rng.random_range(0..train_samples.len())];
-                let d = s.graph.offsets(&s.positions, &s.positions)?;
-                let y = net.forward(&s.graph, &s.features, &d)?;
-                (y - &s.target)?.sqr()?.mean_all()?
-            };
-            loss = Some(match loss {
-                None => l,
-                Some(acc) => (acc + l)?,
-            });
-        }
-        Ok((loss.expect("batch >= 1") / train.batch.max(1) as f64)?)
-    })?;
+    let report = train_loop.run::<Error>(
+        &adam,
+        lr,
+        |step| CheckpointMeta { step, seed: Some(seed), config: config.clone() },
+        |step| {
+            // The frames of an update drawn from the seed and the step (resumable, reproducible).
+            let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(seed, step));
+            let mut loss: Option<Tensor> = None;
+            for _ in 0..train.batch.max(1) {
+                let l = if unroll > 1 {
+                    let sim = &data.train[rng.random_range(0..data.train.len())];
+                    let t = rng.random_range(0..sim.frames.len() - unroll);
+                    unrolled_loss(data, &net, &scales, sim, t, unroll)?
+                } else {
+                    let s = &train_samples[rng.random_range(0..train_samples.len())];
+                    let d = s.graph.offsets(&s.positions, &s.positions)?;
+                    let y = net.forward(&s.graph, &s.features, &d)?;
+                    (y - &s.target)?.sqr()?.mean_all()?
+                };
+                loss = Some(match loss {
+                    None => l,
+                    Some(acc) => (acc + l)?,
+                });
+            }
+            Ok((loss.expect("batch >= 1") / train.batch.max(1) as f64)?)
+        },
+    )?;
     let train_seconds = start.elapsed().as_secs_f64();
     let tail = (report.losses.len() / 10).max(1);
     let train_loss = if report.losses.is_empty() {

@@ -66,7 +66,7 @@ fn train_resumes_and_eval_writes_the_table() {
     for key in ["test_rel_mse", "rollout_error", "momentum_drift"] {
         assert_eq!(full[key], resumed[key], "{key} differs after resuming");
     }
-    // Other settings on the same directory are refused, naming the directory.
+    // Other settings on the same directory are refused, naming the directory and the setting.
     let err = fails(&[
         "pconv",
         "train",
@@ -80,7 +80,7 @@ fn train_resumes_and_eval_writes_the_table() {
         "--out",
         a.to_str().unwrap(),
     ]);
-    assert!(err.contains("run_dir"), "{err}");
+    assert!(err.contains(a.to_str().unwrap()) && err.contains("`basis`") && err.contains("new run directory"), "{err}");
 
     let out = tmp.path().join("table");
     ok(&[

@@ -12,6 +12,7 @@
 //! | [`guard`] | [`NanGuard`]: `Error::Diverged` at the first non-finite loss or gradient norm |
 //! | [`run`] | [`TrainLoop`]: the one training loop (resume from the latest checkpoint, lr schedule, clip, NaN guard, `loss.csv`, progress, atomic checkpoints, an after-step hook, an evaluation cadence kept out of the timings, a time budget; `TrainLoop::in_memory` for a fixed variable list); a method supplies its loss, or its whole update with `TrainLoop::run_custom` (hand-written adjoints, HIG, GANs) |
 //! | [`step`] | [`train_step`]: backward, clip, guard, update in one call |
+//! | [`resume`] | [`check_resume`]: refuses to resume a run directory whose newest checkpoint holds another config (naming the first differing setting) or more updates than asked; [`canonical`], [`logged_losses`] |
 //! | [`state`] | [`save_train_checkpoint`] / [`load_train_checkpoint`]: weights and optimiser state in one atomic checkpoint, for exact resumes; [`remove_interrupted_writes`] |
 //! | [`crash`] | a kill -9 harness: a test kills a child training run at random times and inside checkpoint writes, resumes it, and compares with an uninterrupted run |
 //!
@@ -59,6 +60,7 @@ pub mod guard;
 pub mod log;
 pub mod optim;
 pub mod progress;
+pub mod resume;
 pub mod run;
 pub mod schedule;
 pub mod state;
@@ -70,6 +72,7 @@ pub use guard::NanGuard;
 pub use log::{LogFormat, LogRow, ScalarLog};
 pub use optim::{AdamConfig, AdamW, AdamWConfig, Optim, OptimState, OptimizerConfig, Sgd, SgdConfig};
 pub use progress::Progress;
+pub use resume::{canonical, check_resume, logged_losses};
 pub use run::{AfterStep, Evaluate, Evaluation, LoopConfig, LoopReport, NoEval, NoHook, StopReason, TrainLoop, Update};
 pub use schedule::{LrScheduler, PlateauConfig, ScheduleConfig};
 pub use state::{

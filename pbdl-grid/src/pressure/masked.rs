@@ -204,6 +204,31 @@ impl MaskedProjection {
     pub(crate) fn apply(&self, u: &Tensor) -> candle_core::Result<Tensor> {
         apply1(u, self.clone())
     }
+
+    /// The projection of `[B, 2, ny, nx]` values that also writes the pressure `[B, ny, nx]`
+    /// (not differentiable; the pressure split of a step).
+    pub(crate) fn project_keep_pressure<T: Real>(&self, x: &[T], out: &mut [T], pressure: &mut [T]) {
+        let s = &*self.0;
+        s.faces().forward_keep_pressure(x, out, pressure, |r, o| s.solve_slice(r, o));
+        self.add_prescribed(out);
+    }
+
+    /// The correction `m F x - m G p (+ c)` with a given pressure `[B, ny, nx]` (not
+    /// differentiable).
+    pub(crate) fn correct<T: Real>(&self, x: &[T], pressure: &[T], out: &mut [T]) {
+        self.0.faces().correct(x, pressure, out);
+        self.add_prescribed(out);
+    }
+
+    fn add_prescribed<T: Real>(&self, out: &mut [T]) {
+        if let Some(c) = &self.0.prescribed {
+            for ob in out.chunks_mut(c.len()) {
+                for (o, &ci) in ob.iter_mut().zip(c) {
+                    *o += T::c(ci);
+                }
+            }
+        }
+    }
 }
 
 impl Kernel1 for MaskedProjection {
@@ -216,13 +241,7 @@ impl Kernel1 for MaskedProjection {
     fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
         let s = &*self.0;
         s.faces().forward(x, out, |r, o| s.solve_slice(r, o));
-        if let Some(c) = &s.prescribed {
-            for ob in out.chunks_mut(c.len()) {
-                for (o, &ci) in ob.iter_mut().zip(c) {
-                    *o += T::c(ci);
-                }
-            }
-        }
+        self.add_prescribed(out);
         Ok(())
     }
 }

@@ -52,6 +52,17 @@ impl Projection {
     fn faces(&self) -> Faces<'_> {
         Faces { grid: &self.grid, mac: &self.mac, p: &self.p, open: None }
     }
+
+    /// The projection of `[B, 2, ny, nx]` values that also writes the pressure `[B, ny, nx]`
+    /// (not differentiable; the pressure split of a step).
+    pub(crate) fn project_keep_pressure<T: Real>(&self, x: &[T], out: &mut [T], pressure: &mut [T]) {
+        self.faces().forward_keep_pressure(x, out, pressure, |r, o| self.solver.solve_slice(r, o));
+    }
+
+    /// The correction `m F x - m G p` with a given pressure `[B, ny, nx]` (not differentiable).
+    pub(crate) fn correct<T: Real>(&self, x: &[T], pressure: &[T], out: &mut [T]) {
+        self.faces().correct(x, pressure, out);
+    }
 }
 
 /// Scratch of one projection: padded components, divergence, pressure.
@@ -132,18 +143,47 @@ impl Faces<'_> {
 
     /// `out = w - m G p`, `w = m F x`, `p = solve(D w)`, per `[2, ny, nx]` sample.
     pub(crate) fn forward<T: Real>(&self, x: &[T], out: &mut [T], solve: impl Fn(&[T], &mut [T])) {
+        self.forward_with(x, out, |_, div, p| solve(div, p));
+    }
+
+    /// [`Self::forward`] that also writes each sample's pressure `p` (`[ny, nx]` per sample)
+    /// into `pressure`.
+    pub(crate) fn forward_keep_pressure<T: Real>(
+        &self,
+        x: &[T],
+        out: &mut [T],
+        pressure: &mut [T],
+        solve: impl Fn(&[T], &mut [T]),
+    ) {
+        let n = self.grid.cells();
+        let cell = std::cell::RefCell::new(pressure);
+        self.forward_with(x, out, |b, div, p| {
+            solve(div, p);
+            cell.borrow_mut()[b * n..(b + 1) * n].copy_from_slice(p);
+        });
+    }
+
+    /// `out = m F x - m G p` with a given pressure (`[ny, nx]` per sample): the velocity
+    /// correction without a solve (e.g. from a predicted pressure).
+    pub(crate) fn correct<T: Real>(&self, x: &[T], pressure: &[T], out: &mut [T]) {
+        let n = self.grid.cells();
+        self.forward_with(x, out, |b, _, p| p.copy_from_slice(&pressure[b * n..(b + 1) * n]));
+    }
+
+    /// The projection with the pressure of sample `b` supplied by `pressure(b, D w, p)`.
+    fn forward_with<T: Real>(&self, x: &[T], out: &mut [T], mut pressure: impl FnMut(usize, &[T], &mut [T])) {
         let (nx, ny) = (self.grid.nx, self.grid.ny);
         let n = nx * ny;
         let (idx, idy) = (T::c(1.0 / self.grid.dx()), T::c(1.0 / self.grid.dy()));
         let mut s = Scratch::<T>::new(nx, ny);
-        for (xb, ob) in x.chunks(2 * n).zip(out.chunks_mut(2 * n)) {
+        for (b, (xb, ob)) in x.chunks(2 * n).zip(out.chunks_mut(2 * n)).enumerate() {
             ob.copy_from_slice(xb);
             set_fixed(ob, nx, ny, self.mac.u_fixed.map(T::c), self.mac.v_fixed.map(T::c));
             self.mask(ob);
             pad(&ob[..n], nx, ny, &self.mac.u, true, &mut s.a);
             pad(&ob[n..], nx, ny, &self.mac.v, true, &mut s.b);
             div_padded(&s.a, &s.b, nx, ny, idx, idy, &mut s.div);
-            solve(&s.div, &mut s.p);
+            pressure(b, &s.div, &mut s.p);
             pad(&s.p, nx, ny, self.p, true, &mut s.c);
             let (gu, gv) = s.g.split_at_mut(n);
             grad_padded(&s.c, nx, ny, idx, idy, self.fixed(), gu, gv);
