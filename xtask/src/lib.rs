@@ -8,10 +8,12 @@
 //! | [`registry`] | the entry types ([`registry::Entry`], [`registry::CrateTasks`], ...) and the list of crates |
 //! | [`entries`] | one module per library crate with its tour, bench and stress entries |
 //! | [`acceptance`] | runs the `#[ignore]`d tests behind README numbers as child processes (stress entries `acceptance`) |
+//! | [`latent`] | `cargo xtask latent train\|eval` (latent-space physics on 2D smoke), shared with its entries |
 //! | [`fuzz`] | mutation fuzzing of pbdl's file readers on stable Rust (`cargo xtask stress fuzz`) |
 
 pub mod acceptance;
 pub mod bench_schema;
 pub mod entries;
 pub mod fuzz;
+pub mod latent;
 pub mod registry;

@@ -201,6 +201,10 @@ enum Command {
     /// train one network (resumable), or evaluate every basis (time-against-error table).
     #[command(subcommand)]
     Pconv(pconv::PconvCommand),
+    /// Latent-space physics (Wiewel et al. 2019) on 2D smoke: train the pressure autoencoder and
+    /// the LSTM (resumable), evaluate hybrid rollouts against the solver (time vs error).
+    #[command(subcommand)]
+    Latent(xtask::latent::LatentCommand),
     /// PDE control of forced 1D Burgers (Holl et al. 2020): train the controller (resumable),
     /// evaluate it against the direct optimiser and no control.
     #[command(subcommand)]
@@ -415,6 +419,7 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Sol(cmd) => sol::run_sol(cmd),
         Command::Pconv(cmd) => pconv::run(cmd),
+        Command::Latent(cmd) => xtask::latent::run(cmd),
         Command::Control(cmd) => sol::run_control(cmd),
         Command::Ci => ci::run(),
         Command::List => {

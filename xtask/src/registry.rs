@@ -114,6 +114,7 @@ pub fn all() -> Vec<CrateTasks> {
         crate::entries::diffusion::tasks(),
         crate::entries::nets::tasks(),
         crate::entries::pconv::tasks(),
+        crate::entries::latent::tasks(),
         crate::entries::sol::tasks(),
         crate::entries::weather::tasks(),
     ]

@@ -190,6 +190,58 @@ impl WallProjection {
     pub(crate) fn apply(&self, u: &Tensor) -> candle_core::Result<Tensor> {
         apply1(u, self.clone())
     }
+
+    /// The one code path of the projection: per `[3, nz, ny, nx]` sample `b` of `x`, in f64,
+    /// wall faces to 0, `rhs = -D u`, the pressure `p` from `pressure(b, rhs, p)` (a solve, or a
+    /// given pressure copied in), `u -= G p`; written to `out` in `T`. The differentiable
+    /// projection, [`Self::forward_keep_pressure`] and [`Self::correct`] all run this, so they
+    /// agree to the bit.
+    pub(crate) fn forward_with<T: Real>(
+        &self,
+        x: &[T],
+        out: &mut [T],
+        mut pressure: impl FnMut(usize, &mut [f64], &mut [f64]) -> Result<()>,
+    ) -> Result<()> {
+        let grid = *self.solver.grid();
+        let n = grid.cells();
+        let (mut w, mut p) = (vec![0.0f64; 3 * n], vec![0.0f64; n]);
+        for (b, (xb, ob)) in x.chunks(3 * n).zip(out.chunks_mut(3 * n)).enumerate() {
+            for (a, &v) in w.iter_mut().zip(xb) {
+                *a = <T as candle_core::WithDType>::to_f64(v);
+            }
+            project_box_slice(&grid, &mut w, &mut p, |rhs, p| pressure(b, rhs, p))?;
+            for (o, &a) in ob.iter_mut().zip(&w) {
+                *o = T::c(a);
+            }
+        }
+        Ok(())
+    }
+
+    /// The projection of `[B, 3, nz, ny, nx]` values that also writes each sample's pressure
+    /// (`[nz, ny, nx]` per sample, rounded to `T`) into `pressure` (not differentiable; the
+    /// pressure split of a step).
+    pub(crate) fn forward_keep_pressure<T: Real>(&self, x: &[T], out: &mut [T], pressure: &mut [T]) -> Result<()> {
+        let n = self.solver.grid().cells();
+        self.forward_with(x, out, |b, rhs, p| {
+            self.solver.solve(rhs, p)?;
+            for (o, &v) in pressure[b * n..(b + 1) * n].iter_mut().zip(p.iter()) {
+                *o = T::c(v);
+            }
+            Ok(())
+        })
+    }
+
+    /// The velocity correction with a given pressure (`[nz, ny, nx]` per sample) instead of a
+    /// solve: wall faces to 0, `u -= G p` (not differentiable).
+    pub(crate) fn correct<T: Real>(&self, x: &[T], pressure: &[T], out: &mut [T]) -> Result<()> {
+        let n = self.solver.grid().cells();
+        self.forward_with(x, out, |b, _, p| {
+            for (d, &v) in p.iter_mut().zip(&pressure[b * n..(b + 1) * n]) {
+                *d = <T as candle_core::WithDType>::to_f64(v);
+            }
+            Ok(())
+        })
+    }
 }
 
 impl Kernel1 for WallProjection {
@@ -201,19 +253,7 @@ impl Kernel1 for WallProjection {
         Ok(s.clone())
     }
     fn forward<T: Real>(&self, x: &[T], _s: &Shape, out: &mut [T]) -> candle_core::Result<()> {
-        let grid = *self.solver.grid();
-        let n = grid.cells();
-        let (mut w, mut p) = (vec![0.0f64; 3 * n], vec![0.0f64; n]);
-        for (xb, ob) in x.chunks(3 * n).zip(out.chunks_mut(3 * n)) {
-            for (a, &b) in w.iter_mut().zip(xb) {
-                *a = <T as candle_core::WithDType>::to_f64(b);
-            }
-            project_box_slice(&grid, &mut w, &mut p, |b, x| self.solver.solve(b, x))?;
-            for (o, &a) in ob.iter_mut().zip(&w) {
-                *o = T::c(a);
-            }
-        }
-        Ok(())
+        Ok(self.forward_with(x, out, |_, rhs, p| self.solver.solve(rhs, p))?)
     }
 }
 

@@ -17,7 +17,7 @@
 //! | [`cavity`] | [`Cavity3d`]: the lid-driven cavity stepper (walled right-hand side, projection per stage) |
 //! | [`advect`] | semi-Lagrangian and MacCormack (Selle limiter) advection of cell-centred scalars and of the no-slip box velocity ([`Advection3d`]); hand-written adjoints |
 //! | [`conservative`] | [`Conservative3d`]: finite-volume flux form with Zalesak's FCT for cell-centred scalars (walls or periodic per axis): mass conserved to round-off, no new extrema, second order where smooth; forward only |
-//! | [`smoke`] | [`Smoke3d`]: the buoyant smoke plume (density advection, sphere inflow, velocity self-advection, Boussinesq buoyancy, optional viscosity, box projection), listing its operators |
+//! | [`smoke`] | [`Smoke3d`]: the buoyant smoke plume (density advection, sphere inflow, velocity self-advection, Boussinesq buoyancy, optional viscosity, box projection), listing its operators; its pressure split ([`Smoke3d::step_unprojected`], [`Smoke3d::project_keep_pressure`], [`Smoke3d::correct_with_pressure`]) for latent-space physics |
 //!
 //! Conventions: tensors `[batch, channel, nz, ny, nx]`, x fastest, `f32` or `f64`, CPU. The
 //! periodic solver ([`NavierStokes3d`]) treats every face of the box as periodic; the cavity

@@ -14,6 +14,12 @@
 //! 4. projection in the closed box ([`super::box_pressure`]: [`BoxPressure::Auto`] factors a
 //!    sparse Cholesky up to 32^3 cells and runs MIC(0)-CG above, as [`super::Cavity3d`]).
 //!
+//! The pressure split: [`Smoke3d::step_unprojected`] runs steps 1-3,
+//! [`Smoke3d::project_keep_pressure`] step 4 returning the pressure it solved for, and
+//! [`Smoke3d::correct_with_pressure`] step 4 with a given pressure instead of a solve (what
+//! latent-space physics does with a predicted pressure). All three and [`Smoke3d::step`] run one
+//! projection kernel, so the split step equals the step to the bit.
+//!
 //! A [`Smoke3d`] is built once and holds only what its configuration needs;
 //! [`Smoke3d::operators`] lists them. Every part has a hand-written adjoint (advection,
 //! buoyancy, both viscosities, the projection), so a step is differentiable in the initial
@@ -363,6 +369,107 @@ impl Smoke3d {
     /// configured rate (ignored without a source). Refuses a state on another grid, of
     /// mismatched batch or dtype, or with non-finite values (typed errors).
     pub fn step(&self, state: &Smoke3dState, rate: Option<&Tensor>) -> Result<Smoke3dState> {
+        let (v, rho) = self.before_projection(state, rate)?;
+        // 4. Projection.
+        let v = self.projection.apply(&v)?;
+        Ok(Smoke3dState { velocity: MacField3d::from_parts(v, self.grid), density: rho })
+    }
+
+    /// Steps 1-3 of [`Smoke3d::step`] (density transport and inflow, velocity advection,
+    /// buoyancy, viscosity) without the projection: the first half of the pressure split that
+    /// latent-space physics replaces on some steps. [`Smoke3d::project_keep_pressure`] of the
+    /// returned velocity is [`Smoke3d::step`]'s velocity to the bit, and the returned density is
+    /// the step's. Every [`Smoke3d`] configuration projects exactly once per step (the velocity
+    /// takes semi-Lagrangian or MacCormack advection, the conservative scheme is refused at build
+    /// time), so the split is defined for all of them. Differentiable as [`Smoke3d::step`].
+    ///
+    /// # Errors
+    /// As [`Smoke3d::step`].
+    pub fn step_unprojected(&self, state: &Smoke3dState, rate: Option<&Tensor>) -> Result<Smoke3dState> {
+        let (v, rho) = self.before_projection(state, rate)?;
+        Ok(Smoke3dState { velocity: MacField3d::from_parts(v, self.grid), density: rho })
+    }
+
+    /// The projection of [`Smoke3d::step`] that also returns its pressure (cell-centred,
+    /// `[B, 1, nz, ny, nx]` in the velocity's dtype, in the units of the solve: `u <- u - G p`,
+    /// so `p` is the physical pressure times `dt / density`; zero mean per sample). Computed by
+    /// the same kernel as the step (in f64, rounded to the velocity's dtype), so
+    /// `project_keep_pressure(step_unprojected(s).velocity).0 == step(s).velocity` bit for bit.
+    /// Not differentiable.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] for a velocity on another grid, not f32/f64 or not on the CPU;
+    /// [`Error::Shape`] for other than `[B, 3, nz, ny, nx]`; a solver error (CG not converged).
+    pub fn project_keep_pressure(&self, u: &MacField3d) -> Result<(MacField3d, Tensor)> {
+        let (v, p) = match u.values().dtype() {
+            DType::F32 => self.pressure_split::<f32>(u, None)?,
+            _ => self.pressure_split::<f64>(u, None)?,
+        };
+        let p = p.ok_or_else(|| Error::Invalid { field: "pressure", reason: "the solve kept no pressure".into() })?;
+        Ok((v, p))
+    }
+
+    /// The velocity correction of [`Smoke3d::step`] with a given pressure (e.g. a decoded,
+    /// predicted one) instead of a solve: wall faces set to 0 as the projection sets them, then
+    /// `u - G p` (computed in f64, returned in the velocity's dtype). With the pressure of
+    /// [`Smoke3d::project_keep_pressure`] it equals that projection (to the bit for f64
+    /// velocities; for f32 the kept pressure was rounded to f32, so to f32 round-off). The
+    /// result is divergence-free only as far as `p` solves the step's Poisson problem. Not
+    /// differentiable.
+    ///
+    /// # Errors
+    /// As [`Smoke3d::project_keep_pressure`]; [`Error::Shape`] when `pressure` is not
+    /// `[B, 1, nz, ny, nx]` for `u`'s batch `B`, [`Error::Invalid`] when it is not f32/f64 or not
+    /// on the CPU.
+    pub fn correct_with_pressure(&self, u: &MacField3d, pressure: &Tensor) -> Result<MacField3d> {
+        const OP: &str = "Smoke3d::correct_with_pressure";
+        check_values(OP, "pressure", pressure, &self.grid, Some(1))?;
+        let b = u.values().dims().first().copied().unwrap_or(0);
+        if pressure.dims()[0] != b {
+            return Err(Error::Shape {
+                op: OP,
+                arg: "pressure",
+                expected: format!(
+                    "[{b}, 1, {}, {}, {}] (the velocity's batch)",
+                    self.grid.nz, self.grid.ny, self.grid.nx
+                ),
+                got: pressure.dims().to_vec(),
+            });
+        }
+        Ok(match u.values().dtype() {
+            DType::F32 => self.pressure_split::<f32>(u, Some(pressure))?.0,
+            _ => self.pressure_split::<f64>(u, Some(pressure))?.0,
+        })
+    }
+
+    /// The projection kernel on `T` slices (the velocity's dtype): with `given` the correction
+    /// by that pressure, else the solve, returning its pressure.
+    fn pressure_split<T: Real>(&self, u: &MacField3d, given: Option<&Tensor>) -> Result<(MacField3d, Option<Tensor>)> {
+        u.check_stepper_grid(&self.grid)?;
+        check_values("Smoke3d::project_keep_pressure", "u", u.values(), &self.grid, Some(3))?;
+        let values = u.values();
+        let shape = values.shape().clone();
+        let b = shape.dims()[0];
+        let x: Vec<T> = values.to_dtype(T::DTYPE)?.flatten_all()?.to_vec1::<T>()?;
+        let mut out = vec![T::zero(); x.len()];
+        let pressure = match given {
+            Some(p) => {
+                let p: Vec<T> = p.to_dtype(T::DTYPE)?.flatten_all()?.to_vec1::<T>()?;
+                self.projection.correct(&x, &p, &mut out)?;
+                None
+            }
+            None => {
+                let mut p = vec![T::zero(); b * self.grid.cells()];
+                self.projection.forward_keep_pressure(&x, &mut out, &mut p)?;
+                Some(Tensor::from_vec(p, self.grid.shape(b, 1).to_vec(), values.device())?.to_dtype(values.dtype())?)
+            }
+        };
+        let v = Tensor::from_vec(out, shape, values.device())?.to_dtype(values.dtype())?;
+        Ok((MacField3d::from_parts(v, self.grid), pressure))
+    }
+
+    /// Steps 1-3 (everything before the projection): the velocity values and the new density.
+    fn before_projection(&self, state: &Smoke3dState, rate: Option<&Tensor>) -> Result<(Tensor, Tensor)> {
         self.check_state(state)?;
         let (dt, g) = (self.config.dt, self.grid);
         let u = &state.velocity;
@@ -403,9 +510,7 @@ impl Smoke3d {
             Some(Visc::Implicit(op)) => v = apply1(&v, *op)?,
             None => {}
         }
-        // 4. Projection.
-        let v = self.projection.apply(&v)?;
-        Ok(Smoke3dState { velocity: MacField3d::from_parts(v, g), density: rho })
+        Ok((v, rho))
     }
 }
 

@@ -5,6 +5,7 @@
 pub mod core;
 pub mod diffusion;
 pub mod grid;
+pub mod latent;
 pub mod metrics;
 pub mod nets;
 pub mod optim;
