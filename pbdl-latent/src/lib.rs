@@ -3,7 +3,7 @@
 //! Latent-space physics (Wiewel, Becher & Thuerey, Eurographics 2019): a convolutional
 //! autoencoder compresses the pressure field of a smoke solver to a short code, an LSTM predicts
 //! the next code from the last few, and inside the solver loop the decoded prediction replaces
-//! the pressure solve on all but every `i`-th step. The solver is pbdl-grid's [`Fluid`]
+//! the pressure solve on all but every `i`-th step. The solver is pbdl-grid's `Fluid`
 //! (`pbdl_grid::Fluid`), entered through its pressure split, never copied.
 //!
 //! | module | what it gives you |
