@@ -4,7 +4,7 @@
 //!
 //! `cargo run --release -p pbdl-latent --example latent_smoke [res=32] [train=12] [test=4]
 //! [frames=160] [ae_steps=2000] [lstm_steps=3000] [latent=8] [widths=16,32,64] [steps=200]
-//! [warmup=50] [intervals=2,5,10] [seed=0] [residual=0|1] [nu=0] [dir=PATH] [model=PATH] [sensitivity]`
+//! [warmup=50] [intervals=2,5,10] [seed=0] [residual=0|1] [nu=0] [grad_weight=0] [dir=PATH] [model=PATH] [sensitivity]`
 
 use pbdl_latent::autoencoder::AutoencoderConfig;
 use pbdl_latent::data::{generate, PlumeData};
@@ -61,6 +61,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         predictor_training: PhaseSettings { steps: arg("lstm_steps", 3000), batch: 16, lr: arg("lstm_lr", 3e-4) },
         predictor: PredictorConfig { residual: arg("residual", 0) == 1, ..PredictorConfig::default() },
         seed: arg("seed", 0),
+        gradient_loss_weight: arg("grad_weight", 0.0),
     };
     let dir: Option<PathBuf> = std::env::args().find_map(|a| a.strip_prefix("dir=").map(PathBuf::from));
     let t = std::time::Instant::now();

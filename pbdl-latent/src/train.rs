@@ -73,6 +73,15 @@ pub struct LatentTrainConfig {
     pub predictor_training: PhaseSettings,
     /// Seed of the initialisations and of the sampled frames and windows.
     pub seed: u64,
+    /// Weight of a loss on the pressure's finite-difference gradient (what the velocity
+    /// correction uses), added to the autoencoder's MSE in the same units (scaled by the batch's
+    /// `mean p^2 / mean |grad p|^2`). 0, the default, is the paper's plain MSE.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub gradient_loss_weight: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl Default for LatentTrainConfig {
@@ -83,6 +92,7 @@ impl Default for LatentTrainConfig {
             autoencoder_training: PhaseSettings::default(),
             predictor_training: PhaseSettings { steps: 3000, batch: 16, lr: 3e-4 },
             seed: 0,
+            gradient_loss_weight: 0.0,
         }
     }
 }
@@ -132,6 +142,12 @@ pub fn train_autoencoder(
 ) -> Result<(LatentAutoencoder, VarMap, f32)> {
     let t = &cfg.autoencoder_training;
     t.validate("autoencoder_training")?;
+    if !(cfg.gradient_loss_weight >= 0.0 && cfg.gradient_loss_weight.is_finite()) {
+        return Err(Error::config(
+            "gradient_loss_weight",
+            format!("{}; use a finite value >= 0", cfg.gradient_loss_weight),
+        ));
+    }
     if cfg.autoencoder.resolution != data.config.resolution {
         return Err(Error::config(
             "autoencoder.resolution",
@@ -145,9 +161,13 @@ pub fn train_autoencoder(
     let count = frames.dims()[0];
     let varmap = VarMap::new();
     let ae = LatentAutoencoder::new(cfg.autoencoder.clone(), &varmap, cfg.seed)?;
-    let config = json(&serde_json::json!({
+    let mut settings = serde_json::json!({
         "phase": "autoencoder", "data": data.config, "autoencoder": cfg.autoencoder, "training": t, "seed": cfg.seed,
-    }))?;
+    });
+    if cfg.gradient_loss_weight != 0.0 {
+        settings["gradient_loss_weight"] = cfg.gradient_loss_weight.into();
+    }
+    let config = json(&settings)?;
     let lc = loop_config(t.steps, run_dir, &config)?;
     let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, ..Default::default() });
     let meta = |step| CheckpointMeta { step, seed: Some(cfg.seed), config: config.clone() };
@@ -159,7 +179,20 @@ pub fn train_autoencoder(
             let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed, step));
             let idx: Vec<u32> = (0..t.batch).map(|_| rng.random_range(0..count) as u32).collect();
             let x = frames.index_select(&Tensor::new(idx, &Device::Cpu)?, 0)?;
-            Ok((ae.reconstruct(&x)? - &x)?.sqr()?.mean_all()?)
+            let e = (ae.reconstruct(&x)? - &x)?;
+            let mse = e.sqr()?.mean_all()?;
+            if cfg.gradient_loss_weight == 0.0 {
+                return Ok(mse);
+            }
+            let grad_sq = |f: &Tensor| -> Result<Tensor> {
+                let n = f.dims()[3];
+                let dx = (f.narrow(3, 1, n - 1)? - f.narrow(3, 0, n - 1)?)?;
+                let dy = (f.narrow(2, 1, n - 1)? - f.narrow(2, 0, n - 1)?)?;
+                Ok((dx.sqr()?.mean_all()? + dy.sqr()?.mean_all()?)?)
+            };
+            // The gradient term in the MSE's units: scaled by the batch's field / gradient ratio.
+            let ratio = (x.sqr()?.mean_all()?.to_scalar::<f32>()? / grad_sq(&x)?.to_scalar::<f32>()?.max(1e-12)) as f64;
+            Ok((mse + (grad_sq(&e)? * (cfg.gradient_loss_weight * ratio))?)?)
         },
     )?;
     Ok((ae, varmap, scale))
@@ -210,10 +243,15 @@ pub fn train_predictor(
     }
     let varmap = VarMap::new();
     let predictor = LatentPredictor::new(pc.clone(), &varmap, cfg.seed)?;
-    let config = json(&serde_json::json!({
+    let mut settings = serde_json::json!({
         "phase": "predictor", "data": data_config, "autoencoder": cfg.autoencoder, "predictor": pc,
         "autoencoder_training": cfg.autoencoder_training, "training": t, "seed": cfg.seed,
-    }))?;
+    });
+    // The codes depend on how the autoencoder was trained.
+    if cfg.gradient_loss_weight != 0.0 {
+        settings["gradient_loss_weight"] = cfg.gradient_loss_weight.into();
+    }
+    let config = json(&settings)?;
     let lc = loop_config(t.steps, run_dir, &config)?;
     let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, ..Default::default() });
     let meta = |step| CheckpointMeta { step, seed: Some(cfg.seed), config: config.clone() };

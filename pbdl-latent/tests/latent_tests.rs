@@ -34,6 +34,7 @@ fn small_config(ae_steps: u64, lstm_steps: u64) -> LatentTrainConfig {
         autoencoder_training: PhaseSettings { steps: ae_steps, batch: 8, lr: 2e-3 },
         predictor_training: PhaseSettings { steps: lstm_steps, batch: 8, lr: 2e-3 },
         seed: 3,
+        gradient_loss_weight: 0.0,
     }
 }
 
@@ -112,6 +113,9 @@ fn training_resumes_to_the_same_weights_and_refuses_other_settings() {
     other.autoencoder_training.lr = 1e-3;
     let e = train_autoencoder(data(), &other, Some(&run)).err().expect("refused");
     assert!(e.to_string().contains("lr"), "{e}");
+    let other = LatentTrainConfig { gradient_loss_weight: 0.5, ..small_config(20, 1) };
+    let e = train_autoencoder(data(), &other, Some(&run)).err().expect("refused");
+    assert!(e.to_string().contains("gradient_loss_weight"), "{e}");
 }
 
 #[test]

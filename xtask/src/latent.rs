@@ -105,6 +105,7 @@ pub fn configs(a: &TrainArgs) -> (PlumeData, LatentTrainConfig) {
             autoencoder_training: PhaseSettings { steps: 60, batch: 8, lr: 2e-3 },
             predictor_training: PhaseSettings { steps: 60, batch: 8, lr: 2e-3 },
             seed: a.seed,
+            gradient_loss_weight: 0.0,
         };
         return (data, cfg);
     }
