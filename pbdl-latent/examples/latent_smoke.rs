@@ -8,7 +8,7 @@
 
 use pbdl_latent::autoencoder::AutoencoderConfig;
 use pbdl_latent::data::{generate, PlumeData};
-use pbdl_latent::eval::{autoencoder_error, prediction_error, rollout, rollout_autoencoder_only};
+use pbdl_latent::eval::{autoencoder_error, prediction_error, rollout, rollout_autoencoder_only, RolloutScore};
 use pbdl_latent::hybrid::Schedule;
 use pbdl_latent::model::LatentModel;
 use pbdl_latent::predictor::PredictorConfig;
@@ -83,35 +83,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let steps: usize = arg("steps", 200);
     let warmup: usize = arg("warmup", 50);
-    println!("| scene x | interval | predicted steps | finite | density err final | max | div ratio max | hybrid ms/step | solver ms/step |");
+    println!("{}", RolloutScore::MARKDOWN_HEADER);
     for s in &data.test {
         let r = rollout_autoencoder_only(&model, &data.config.scene(s.param), Schedule { warmup, interval: 2 }, steps)?;
-        println!(
-            "| {:.3} | 2 (autoencoder only) | {} | {} | {:.4} | {:.4} | {:.3} | {:.2} | {:.2} |",
-            s.param,
-            r.predicted_steps,
-            r.finite,
-            r.density_error_final,
-            r.density_error_max,
-            r.divergence_ratio_max,
-            r.hybrid_seconds_per_step * 1e3,
-            r.solver_seconds_per_step * 1e3
-        );
+        println!("{}", r.markdown_row(s.param, "2 (autoencoder only)"));
     }
     for interval in list("intervals", "2,5,10") {
         for s in &data.test {
             let r = rollout(&model, &data.config.scene(s.param), Schedule { warmup, interval }, steps)?;
-            println!(
-                "| {:.3} | {interval} | {} | {} | {:.4} | {:.4} | {:.3} | {:.2} | {:.2} |",
-                s.param,
-                r.predicted_steps,
-                r.finite,
-                r.density_error_final,
-                r.density_error_max,
-                r.divergence_ratio_max,
-                r.hybrid_seconds_per_step * 1e3,
-                r.solver_seconds_per_step * 1e3
-            );
+            println!("{}", r.markdown_row(s.param, &interval.to_string()));
         }
     }
     Ok(())

@@ -36,14 +36,12 @@
 //! ```
 
 use crate::data3d::{Dataset3d, Sequence3d};
-use crate::train::PhaseSettings;
+use crate::train::{run_phase, PhaseSettings};
 use crate::{Error, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use pbdl_core::conv::{Conv3d, Conv3dParams, ConvLayerConfig};
-use pbdl_core::io::CheckpointMeta;
 use pbdl_core::nn::Activation;
-use pbdl_core::train::{AdamConfig, LoopConfig, OptimizerConfig, TrainLoop};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -279,11 +277,6 @@ impl Default for Autoencoder3dTrainConfig {
     }
 }
 
-fn lr_at(t: &PhaseSettings, step: u64) -> f64 {
-    let quarter = (4 * step / t.steps.max(1)).min(3) as i32;
-    t.lr * 0.5f64.powi((quarter - 1).max(0))
-}
-
 /// The 99.9th percentile of `|p|` over the training frames after the first.
 pub fn pressure_scale3d(train: &[Sequence3d]) -> Result<f32> {
     let mut all = Vec::new();
@@ -338,32 +331,12 @@ pub fn train_autoencoder3d(
         "phase": "autoencoder3d", "data": data.config, "autoencoder": cfg.autoencoder, "training": t, "seed": cfg.seed,
     });
     let config = pbdl_core::train::canonical(config)?;
-    let lc = match run_dir {
-        None => LoopConfig { steps: t.steps, progress: false, ..Default::default() },
-        Some(d) => {
-            pbdl_core::train::check_resume(d, &config, t.steps)?;
-            LoopConfig {
-                steps: t.steps,
-                checkpoint_every: (t.steps / 10).max(1),
-                dir: Some(d.to_path_buf()),
-                progress: true,
-                ..Default::default()
-            }
-        }
-    };
-    let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, ..Default::default() });
-    let meta = |step| CheckpointMeta { step, seed: Some(cfg.seed), config: config.clone() };
-    TrainLoop::resume(&varmap, lc)?.run::<Error>(
-        &adam,
-        |s| lr_at(t, s),
-        meta,
-        |step| {
-            let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed, step));
-            let idx: Vec<u32> = (0..t.batch).map(|_| rng.random_range(0..count) as u32).collect();
-            let x = frames.index_select(&Tensor::new(idx, &Device::Cpu)?, 0)?;
-            Ok((ae.reconstruct(&x)? - &x)?.sqr()?.mean_all()?)
-        },
-    )?;
+    run_phase(&varmap, t, cfg.seed, &config, run_dir, |step| {
+        let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed, step));
+        let idx: Vec<u32> = (0..t.batch).map(|_| rng.random_range(0..count) as u32).collect();
+        let x = frames.index_select(&Tensor::new(idx, &Device::Cpu)?, 0)?;
+        Ok((ae.reconstruct(&x)? - &x)?.sqr()?.mean_all()?)
+    })?;
     Ok(Autoencoder3dModel { autoencoder: ae, vars: varmap, pressure_scale: scale })
 }
 

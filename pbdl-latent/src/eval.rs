@@ -111,6 +111,26 @@ pub struct RolloutScore {
     pub solver_seconds_per_step: f64,
 }
 
+impl RolloutScore {
+    /// The header of [`RolloutScore::markdown_row`]'s table.
+    pub const MARKDOWN_HEADER: &'static str = "| scene x | interval | predicted steps | finite | density rel L2 final | max | div ratio max | hybrid ms/step | solver ms/step |\n|---|---|---|---|---|---|---|---|---|";
+
+    /// One markdown table row: the scene parameter, `interval` as given (e.g. `"2"` or
+    /// `"2 (autoencoder only)"`) and the scores.
+    pub fn markdown_row(&self, scene_x: f64, interval: &str) -> String {
+        format!(
+            "| {scene_x:.3} | {interval} | {} | {} | {:.4} | {:.4} | {:.3} | {:.3} | {:.3} |",
+            self.predicted_steps,
+            self.finite,
+            self.density_error_final,
+            self.density_error_max,
+            self.divergence_ratio_max,
+            self.hybrid_seconds_per_step * 1e3,
+            self.solver_seconds_per_step * 1e3
+        )
+    }
+}
+
 fn max_div(u: &pbdl_grid::MacField) -> Result<f64> {
     Ok(fd::divergence(u)?
         .values()

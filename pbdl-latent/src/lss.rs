@@ -51,13 +51,11 @@
 
 use crate::data::{Dataset, PlumeScene, Sequence};
 use crate::predictor::{LatentPredictor, PredictorConfig};
-use crate::train::{json, loop_config, PhaseSettings};
+use crate::train::{json, run_phase, PhaseSettings};
 use crate::{Error, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
-use pbdl_core::io::CheckpointMeta;
 use pbdl_core::nn::Activation;
-use pbdl_core::train::{AdamConfig, OptimizerConfig, TrainLoop};
 use pbdl_grid::{CenteredField, FluidState, MacField};
 use pbdl_nets::encoder_decoder::{ConvDecoder, ConvEncoder, EncoderDecoderConfig, Upsampling};
 use pbdl_nets::{Linear, Padding};
@@ -470,41 +468,33 @@ pub fn train_lss_autoencoder(
     }
     let params: Vec<f32> = data.train.iter().map(|s| norm.param_to_code(s.param) as f32).collect();
     let config = json(&serde_json::json!({ "phase": "lss_autoencoder", "data": data.config, "lss": cfg }))?;
-    let lc = loop_config(t.steps, run_dir, &config)?;
-    let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, ..Default::default() });
-    let meta = |step| CheckpointMeta { step, seed: Some(cfg.seed), config: config.clone() };
     let (vp, dp, ps) = (cfg.velocity_part, cfg.density_part, cfg.param_slot());
     let w = &cfg.weights;
-    TrainLoop::resume(&varmap, lc)?.run::<Error>(
-        &adam,
-        |s| t.lr_at(s),
-        meta,
-        |step| {
-            let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed, step));
-            let (mut xs, mut ps_true) = (Vec::with_capacity(t.batch), Vec::with_capacity(t.batch));
-            for _ in 0..t.batch {
-                let (s, k) = frames[rng.random_range(0..frames.len())];
-                xs.push(scenes[s].narrow(0, k, 1)?);
-                ps_true.push(params[s]);
-            }
-            let x = Tensor::cat(&xs, 0)?;
-            let b = x.dims()[0];
-            let vel = x.narrow(1, 0, 2)?;
-            let den = x.narrow(1, 2, 1)?;
-            let x_v = Tensor::cat(&[vel.clone(), den.zeros_like()?], 1)?;
-            let x_d = Tensor::cat(&[vel.zeros_like()?, den], 1)?;
-            let z_all = ae.encode_normalized(&Tensor::cat(&[x.clone(), x_v, x_d], 0)?)?;
-            let z = z_all.narrow(0, 0, b)?;
-            let (z_v, z_d) = (z_all.narrow(0, b, b)?, z_all.narrow(0, 2 * b, b)?);
-            let y = ae.decode_normalized(&z)?;
-            let (l_vel, l_jac, l_den) = field_losses(&y, &x)?;
-            let split = (z_v.narrow(1, vp, dp)?.abs()?.mean_all()? + z_d.narrow(1, 0, vp)?.abs()?.mean_all()?)?;
-            let p_true = Tensor::new(ps_true, &Device::Cpu)?.reshape((b, 1))?;
-            let l_par = (z.narrow(1, ps, 1)? - p_true)?.sqr()?.mean_all()?;
-            let loss = ((l_vel * w.velocity)? + (l_jac * w.jacobian)? + (l_den * w.density)?)?;
-            Ok(((loss + (split * w.split)?)? + (l_par * w.param)?)?)
-        },
-    )?;
+    run_phase(&varmap, t, cfg.seed, &config, run_dir, |step| {
+        let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed, step));
+        let (mut xs, mut ps_true) = (Vec::with_capacity(t.batch), Vec::with_capacity(t.batch));
+        for _ in 0..t.batch {
+            let (s, k) = frames[rng.random_range(0..frames.len())];
+            xs.push(scenes[s].narrow(0, k, 1)?);
+            ps_true.push(params[s]);
+        }
+        let x = Tensor::cat(&xs, 0)?;
+        let b = x.dims()[0];
+        let vel = x.narrow(1, 0, 2)?;
+        let den = x.narrow(1, 2, 1)?;
+        let x_v = Tensor::cat(&[vel.clone(), den.zeros_like()?], 1)?;
+        let x_d = Tensor::cat(&[vel.zeros_like()?, den], 1)?;
+        let z_all = ae.encode_normalized(&Tensor::cat(&[x.clone(), x_v, x_d], 0)?)?;
+        let z = z_all.narrow(0, 0, b)?;
+        let (z_v, z_d) = (z_all.narrow(0, b, b)?, z_all.narrow(0, 2 * b, b)?);
+        let y = ae.decode_normalized(&z)?;
+        let (l_vel, l_jac, l_den) = field_losses(&y, &x)?;
+        let split = (z_v.narrow(1, vp, dp)?.abs()?.mean_all()? + z_d.narrow(1, 0, vp)?.abs()?.mean_all()?)?;
+        let p_true = Tensor::new(ps_true, &Device::Cpu)?.reshape((b, 1))?;
+        let l_par = (z.narrow(1, ps, 1)? - p_true)?.sqr()?.mean_all()?;
+        let loss = ((l_vel * w.velocity)? + (l_jac * w.jacobian)? + (l_den * w.density)?)?;
+        Ok(((loss + (split * w.split)?)? + (l_par * w.param)?)?)
+    })?;
     Ok((ae, varmap))
 }
 
@@ -580,48 +570,40 @@ pub fn train_lss_predictor(
     let varmap = VarMap::new();
     let predictor = LatentPredictor::new(predictor_config(cfg), &varmap, cfg.seed)?;
     let config = json(&serde_json::json!({ "phase": "lss_predictor", "data": data.config, "lss": cfg }))?;
-    let lc = loop_config(t.steps, run_dir, &config)?;
-    let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, ..Default::default() });
-    let meta = |step| CheckpointMeta { step, seed: Some(cfg.seed), config: config.clone() };
     let wt = &cfg.weights;
     let n = cfg.resolution;
-    TrainLoop::resume(&varmap, lc)?.run::<Error>(
-        &adam,
-        |s| t.lr_at(s),
-        meta,
-        |step| {
-            let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed ^ 0x155, step));
-            let (mut hs, mut ts, mut xs) = (Vec::new(), Vec::new(), Vec::new());
-            for _ in 0..t.batch {
-                let (s, k) = windows[rng.random_range(0..windows.len())];
-                hs.push(codes[s].narrow(0, k, w)?);
-                ts.push(codes[s].narrow(0, k + w, r)?);
-                xs.push(scenes[s].narrow(0, k + w, r)?);
-            }
-            let mut hist = Tensor::stack(&hs, 0)?; // [B, w, code]
-            let target = Tensor::stack(&ts, 0)?; // [B, r, code]
-            let b = hist.dims()[0];
-            let mut preds = Vec::with_capacity(r);
-            for step in 0..r {
-                let tgt = target.narrow(1, step, 1)?.squeeze(1)?;
-                let p = with_param(&predictor.forward(&hist)?, &tgt.narrow(1, slot, 1)?, slot)?;
-                let fed = if cfg.teacher_density { with_density_part(&p, &tgt, cfg)? } else { p.clone() };
-                preds.push(p);
-                hist = if w > 1 {
-                    Tensor::cat(&[hist.narrow(1, 1, w - 1)?, fed.unsqueeze(1)?], 1)?
-                } else {
-                    fed.unsqueeze(1)?
-                };
-            }
-            let pred = Tensor::stack(&preds, 1)?; // [B, r, code]
-            let latent = (pred.narrow(2, 0, slot)? - target.narrow(2, 0, slot)?)?.abs()?.mean_all()?;
-            let y = ae.decode_normalized(&pred.reshape((b * r, cfg.code_size))?)?;
-            let x = Tensor::stack(&xs, 0)?.reshape((b * r, 3, n, n))?;
-            let (l_vel, l_jac, l_den) = field_losses(&y, &x)?;
-            let fields = ((l_vel * wt.velocity)? + (l_jac * wt.jacobian)? + (l_den * wt.density)?)?;
-            Ok(((latent * wt.latent)? + (fields * wt.prediction)?)?)
-        },
-    )?;
+    run_phase(&varmap, t, cfg.seed, &config, run_dir, |step| {
+        let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed ^ 0x155, step));
+        let (mut hs, mut ts, mut xs) = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..t.batch {
+            let (s, k) = windows[rng.random_range(0..windows.len())];
+            hs.push(codes[s].narrow(0, k, w)?);
+            ts.push(codes[s].narrow(0, k + w, r)?);
+            xs.push(scenes[s].narrow(0, k + w, r)?);
+        }
+        let mut hist = Tensor::stack(&hs, 0)?; // [B, w, code]
+        let target = Tensor::stack(&ts, 0)?; // [B, r, code]
+        let b = hist.dims()[0];
+        let mut preds = Vec::with_capacity(r);
+        for step in 0..r {
+            let tgt = target.narrow(1, step, 1)?.squeeze(1)?;
+            let p = with_param(&predictor.forward(&hist)?, &tgt.narrow(1, slot, 1)?, slot)?;
+            let fed = if cfg.teacher_density { with_density_part(&p, &tgt, cfg)? } else { p.clone() };
+            preds.push(p);
+            hist = if w > 1 {
+                Tensor::cat(&[hist.narrow(1, 1, w - 1)?, fed.unsqueeze(1)?], 1)?
+            } else {
+                fed.unsqueeze(1)?
+            };
+        }
+        let pred = Tensor::stack(&preds, 1)?; // [B, r, code]
+        let latent = (pred.narrow(2, 0, slot)? - target.narrow(2, 0, slot)?)?.abs()?.mean_all()?;
+        let y = ae.decode_normalized(&pred.reshape((b * r, cfg.code_size))?)?;
+        let x = Tensor::stack(&xs, 0)?.reshape((b * r, 3, n, n))?;
+        let (l_vel, l_jac, l_den) = field_losses(&y, &x)?;
+        let fields = ((l_vel * wt.velocity)? + (l_jac * wt.jacobian)? + (l_den * wt.density)?)?;
+        Ok(((latent * wt.latent)? + (fields * wt.prediction)?)?)
+    })?;
     Ok((predictor, varmap))
 }
 

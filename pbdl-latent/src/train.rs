@@ -128,6 +128,24 @@ pub(crate) fn loop_config(steps: u64, dir: Option<&Path>, config: &serde_json::V
     })
 }
 
+/// One training phase on pbdl-core's [`TrainLoop`]: Adam on `t`'s schedule; with a run
+/// directory, checkpoints whose sidecar carries `config` (what [`pbdl_core::train::check_resume`]
+/// compares on a resumed call) and `seed`.
+pub(crate) fn run_phase(
+    varmap: &VarMap,
+    t: &PhaseSettings,
+    seed: u64,
+    config: &serde_json::Value,
+    run_dir: Option<&Path>,
+    loss: impl FnMut(u64) -> Result<Tensor>,
+) -> Result<()> {
+    let lc = loop_config(t.steps, run_dir, config)?;
+    let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, ..Default::default() });
+    let meta = |step| CheckpointMeta { step, seed: Some(seed), config: config.clone() };
+    TrainLoop::resume(varmap, lc)?.run::<Error>(&adam, |s| t.lr_at(s), meta, loss)?;
+    Ok(())
+}
+
 /// `t` as the canonical JSON value a checkpoint's sidecar stores.
 pub(crate) fn json<T: Serialize>(t: &T) -> Result<serde_json::Value> {
     let v = serde_json::to_value(t).map_err(|e| Error::config("settings", format!("do not serialise: {e}")))?;
@@ -168,33 +186,25 @@ pub fn train_autoencoder(
         settings["gradient_loss_weight"] = cfg.gradient_loss_weight.into();
     }
     let config = json(&settings)?;
-    let lc = loop_config(t.steps, run_dir, &config)?;
-    let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, ..Default::default() });
-    let meta = |step| CheckpointMeta { step, seed: Some(cfg.seed), config: config.clone() };
-    TrainLoop::resume(&varmap, lc)?.run::<Error>(
-        &adam,
-        |s| t.lr_at(s),
-        meta,
-        |step| {
-            let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed, step));
-            let idx: Vec<u32> = (0..t.batch).map(|_| rng.random_range(0..count) as u32).collect();
-            let x = frames.index_select(&Tensor::new(idx, &Device::Cpu)?, 0)?;
-            let e = (ae.reconstruct(&x)? - &x)?;
-            let mse = e.sqr()?.mean_all()?;
-            if cfg.gradient_loss_weight == 0.0 {
-                return Ok(mse);
-            }
-            let grad_sq = |f: &Tensor| -> Result<Tensor> {
-                let n = f.dims()[3];
-                let dx = (f.narrow(3, 1, n - 1)? - f.narrow(3, 0, n - 1)?)?;
-                let dy = (f.narrow(2, 1, n - 1)? - f.narrow(2, 0, n - 1)?)?;
-                Ok((dx.sqr()?.mean_all()? + dy.sqr()?.mean_all()?)?)
-            };
-            // The gradient term in the MSE's units: scaled by the batch's field / gradient ratio.
-            let ratio = (x.sqr()?.mean_all()?.to_scalar::<f32>()? / grad_sq(&x)?.to_scalar::<f32>()?.max(1e-12)) as f64;
-            Ok((mse + (grad_sq(&e)? * (cfg.gradient_loss_weight * ratio))?)?)
-        },
-    )?;
+    run_phase(&varmap, t, cfg.seed, &config, run_dir, |step| {
+        let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed, step));
+        let idx: Vec<u32> = (0..t.batch).map(|_| rng.random_range(0..count) as u32).collect();
+        let x = frames.index_select(&Tensor::new(idx, &Device::Cpu)?, 0)?;
+        let e = (ae.reconstruct(&x)? - &x)?;
+        let mse = e.sqr()?.mean_all()?;
+        if cfg.gradient_loss_weight == 0.0 {
+            return Ok(mse);
+        }
+        let grad_sq = |f: &Tensor| -> Result<Tensor> {
+            let n = f.dims()[3];
+            let dx = (f.narrow(3, 1, n - 1)? - f.narrow(3, 0, n - 1)?)?;
+            let dy = (f.narrow(2, 1, n - 1)? - f.narrow(2, 0, n - 1)?)?;
+            Ok((dx.sqr()?.mean_all()? + dy.sqr()?.mean_all()?)?)
+        };
+        // The gradient term in the MSE's units: scaled by the batch's field / gradient ratio.
+        let ratio = (x.sqr()?.mean_all()?.to_scalar::<f32>()? / grad_sq(&x)?.to_scalar::<f32>()?.max(1e-12)) as f64;
+        Ok((mse + (grad_sq(&e)? * (cfg.gradient_loss_weight * ratio))?)?)
+    })?;
     Ok((ae, varmap, scale))
 }
 
@@ -252,25 +262,17 @@ pub fn train_predictor(
         settings["gradient_loss_weight"] = cfg.gradient_loss_weight.into();
     }
     let config = json(&settings)?;
-    let lc = loop_config(t.steps, run_dir, &config)?;
-    let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, ..Default::default() });
-    let meta = |step| CheckpointMeta { step, seed: Some(cfg.seed), config: config.clone() };
-    TrainLoop::resume(&varmap, lc)?.run::<Error>(
-        &adam,
-        |s| t.lr_at(s),
-        meta,
-        |step| {
-            let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed ^ 0x5eed, step));
-            let (mut xs, mut ys) = (Vec::with_capacity(t.batch), Vec::with_capacity(t.batch));
-            for _ in 0..t.batch {
-                let (s, k) = windows[rng.random_range(0..windows.len())];
-                xs.push(codes[s].narrow(0, k - w, w)?);
-                ys.push(codes[s].narrow(0, k, 1)?.squeeze(0)?);
-            }
-            let (x, y) = (Tensor::stack(&xs, 0)?, Tensor::stack(&ys, 0)?);
-            Ok((predictor.forward(&x)? - y)?.abs()?.mean_all()?)
-        },
-    )?;
+    run_phase(&varmap, t, cfg.seed, &config, run_dir, |step| {
+        let mut rng = pbdl_core::seed::rng(pbdl_core::noise::stream_seed(cfg.seed ^ 0x5eed, step));
+        let (mut xs, mut ys) = (Vec::with_capacity(t.batch), Vec::with_capacity(t.batch));
+        for _ in 0..t.batch {
+            let (s, k) = windows[rng.random_range(0..windows.len())];
+            xs.push(codes[s].narrow(0, k - w, w)?);
+            ys.push(codes[s].narrow(0, k, 1)?.squeeze(0)?);
+        }
+        let (x, y) = (Tensor::stack(&xs, 0)?, Tensor::stack(&ys, 0)?);
+        Ok((predictor.forward(&x)? - y)?.abs()?.mean_all()?)
+    })?;
     Ok((predictor, varmap))
 }
 

@@ -177,12 +177,12 @@ pub fn run(cmd: LatentCommand) -> anyhow::Result<()> {
             let (_, test_params) = data_cfg.parameters();
             let mut md = format!(
                 "# latent eval: {0}^2 smoke plumes, {1} held-out scenes, {2} steps (warm-up {3})\n\n\
-                 | scene x | interval | predicted steps | finite | density rel L2 final | max | div ratio max | hybrid ms/step | solver ms/step |\n\
-                 |---|---|---|---|---|---|---|---|---|\n",
+                 {4}\n",
                 data_cfg.resolution,
                 test_params.len(),
                 a.steps,
-                a.warmup
+                a.warmup,
+                RolloutScore::MARKDOWN_HEADER
             );
             let test: Vec<_> =
                 test_params.iter().map(|&p| simulate(&data_cfg.scene(p), data_cfg.frames)).collect::<Result<_, _>>()?;
@@ -192,16 +192,7 @@ pub fn run(cmd: LatentCommand) -> anyhow::Result<()> {
             for &i in &intervals {
                 for &p in &test_params {
                     let r = rollout(&model, &data_cfg.scene(p), Schedule { warmup: a.warmup, interval: i }, a.steps)?;
-                    let line = format!(
-                        "| {p:.3} | {i} | {} | {} | {:.4} | {:.4} | {:.3} | {:.3} | {:.3} |",
-                        r.predicted_steps,
-                        r.finite,
-                        r.density_error_final,
-                        r.density_error_max,
-                        r.divergence_ratio_max,
-                        r.hybrid_seconds_per_step * 1e3,
-                        r.solver_seconds_per_step * 1e3
-                    );
+                    let line = r.markdown_row(p, &i.to_string());
                     println!("{line}");
                     md.push_str(&line);
                     md.push('\n');
