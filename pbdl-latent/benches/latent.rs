@@ -10,45 +10,16 @@
 #![allow(missing_docs)] // criterion_group! generates undocumented items
 
 use candle_core::Tensor;
-use candle_nn::VarMap;
 use criterion::{criterion_group, BenchmarkId, Criterion};
 use pbdl_core::stepper::Stepper;
-use pbdl_latent::autoencoder::{AutoencoderConfig, LatentAutoencoder};
 use pbdl_latent::data::PlumeData;
 use pbdl_latent::hybrid::{HybridSmoke, HybridState, PressureSource, Schedule};
-use pbdl_latent::model::{LatentModel, Scales};
-use pbdl_latent::predictor::{LatentPredictor, PredictorConfig};
+use pbdl_latent::model::LatentModel;
 use std::time::Duration;
 
 /// Same allocator as `cargo xtask` and the other benches.
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
-
-fn model(n: usize) -> LatentModel {
-    let levels = (n / 4).max(1).ilog2() as usize;
-    let widths: Vec<usize> = (0..levels).map(|l| 16usize << l.min(3)).collect();
-    let autoencoder_vars = VarMap::new();
-    let autoencoder = LatentAutoencoder::new(
-        AutoencoderConfig { resolution: n, widths, latent_channels: 8, ..Default::default() },
-        &autoencoder_vars,
-        0,
-    )
-    .unwrap();
-    let predictor_vars = VarMap::new();
-    let predictor = LatentPredictor::new(
-        PredictorConfig { code_size: autoencoder.code_size(), ..Default::default() },
-        &predictor_vars,
-        0,
-    )
-    .unwrap();
-    LatentModel {
-        autoencoder,
-        autoencoder_vars,
-        predictor,
-        predictor_vars,
-        scales: Scales { pressure: 1.0, code: 1.0 },
-    }
-}
 
 fn bench(c: &mut Criterion) {
     pbdl_core::threads::init().unwrap();
@@ -62,7 +33,7 @@ fn bench(c: &mut Criterion) {
         let scene = PlumeData { resolution: n, ..PlumeData::default() }.scene(0.5);
         let fluid = scene.fluid().unwrap();
         let rate = scene.rate().unwrap();
-        let m = model(n);
+        let m = LatentModel::untrained(n).unwrap();
         let mut state = scene.start(&fluid).unwrap();
         for _ in 0..20 {
             state = fluid.step(&state, Some(&rate)).unwrap();

@@ -54,6 +54,14 @@ impl Default for AutoencoderConfig {
 }
 
 impl AutoencoderConfig {
+    /// The layout for an `n x n` field down to a `4 x 4` map: one stride-2 level per halving,
+    /// widths 16, 32, 64, 128, 128, ... and `latent_channels` channels in the map.
+    pub fn for_resolution(n: usize, latent_channels: usize) -> Self {
+        let levels = (n / 4).max(1).ilog2() as usize;
+        let widths = (0..levels).map(|l| 16usize << l.min(3)).collect();
+        Self { resolution: n, widths, latent_channels, ..Self::default() }
+    }
+
     /// Side of the latent map.
     pub fn latent_side(&self) -> usize {
         self.resolution >> self.widths.len()

@@ -62,6 +62,22 @@ impl std::fmt::Debug for LatentModel {
 }
 
 impl LatentModel {
+    /// [`AutoencoderConfig::for_resolution`]`(n, 8)` and the default predictor with untrained
+    /// weights and unit scales: the architecture at its cost, for timings (the time does not
+    /// depend on the weights' values).
+    pub fn untrained(n: usize) -> Result<Self> {
+        let autoencoder_vars = VarMap::new();
+        let autoencoder = LatentAutoencoder::new(AutoencoderConfig::for_resolution(n, 8), &autoencoder_vars, 0)?;
+        let predictor_vars = VarMap::new();
+        let predictor = LatentPredictor::new(
+            PredictorConfig { code_size: autoencoder.code_size(), ..PredictorConfig::default() },
+            &predictor_vars,
+            0,
+        )?;
+        let scales = Scales { pressure: 1.0, code: 1.0 };
+        Ok(Self { autoencoder, autoencoder_vars, predictor, predictor_vars, scales })
+    }
+
     /// The normalised code `[B, code]` of pressures `[B, 1, n, n]` in solver units.
     pub fn encode_pressure(&self, p: &Tensor) -> Result<Tensor> {
         let z = self.autoencoder.encode(&(p / self.scales.pressure as f64)?)?;

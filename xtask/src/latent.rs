@@ -117,10 +117,8 @@ pub fn configs(a: &TrainArgs) -> (PlumeData, LatentTrainConfig) {
         seed: a.seed,
         ..Default::default()
     };
-    let levels = (a.res / 4).max(1).ilog2() as usize;
-    let widths: Vec<usize> = (0..levels).map(|l| 16usize << l.min(3)).collect();
     let cfg = LatentTrainConfig {
-        autoencoder: AutoencoderConfig { resolution: a.res, widths, latent_channels: a.latent, ..Default::default() },
+        autoencoder: AutoencoderConfig::for_resolution(a.res, a.latent),
         autoencoder_training: PhaseSettings { steps: a.ae_steps, ..PhaseSettings::default() },
         predictor_training: PhaseSettings { steps: a.lstm_steps, batch: 16, lr: 3e-4 },
         seed: a.seed,

@@ -5,15 +5,12 @@ use crate::bench_schema::{median_seconds, BenchRow};
 use crate::latent::{configs, TrainArgs};
 use crate::registry::{CrateTasks, Entry, StressCheck, StressMeasure, TaskContext, TaskResult, TourOutcome, TourRow};
 use candle_core::Tensor;
-use candle_nn::VarMap;
 use pbdl_core::stepper::Stepper;
 use pbdl_core::viz::{rollout_to_gif, GifStyle};
-use pbdl_latent::autoencoder::{AutoencoderConfig, LatentAutoencoder};
 use pbdl_latent::data::{generate, PlumeData};
 use pbdl_latent::eval::{autoencoder_error, prediction_error, relative_l2};
 use pbdl_latent::hybrid::{HybridSmoke, HybridState, PressureSource, Schedule};
-use pbdl_latent::model::{LatentModel, Scales};
-use pbdl_latent::predictor::{LatentPredictor, PredictorConfig};
+use pbdl_latent::model::LatentModel;
 use pbdl_latent::train::train;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -119,31 +116,6 @@ fn tour_hybrid(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     Ok(TourOutcome { rows, files: vec![path], markdown: md })
 }
 
-/// A model of the default architecture at `n^2` with untrained weights (for timings).
-fn untrained_model(n: usize) -> TaskResult<LatentModel> {
-    let levels = (n / 4).max(1).ilog2() as usize;
-    let widths: Vec<usize> = (0..levels).map(|l| 16usize << l.min(3)).collect();
-    let autoencoder_vars = VarMap::new();
-    let autoencoder = LatentAutoencoder::new(
-        AutoencoderConfig { resolution: n, widths, latent_channels: 8, ..Default::default() },
-        &autoencoder_vars,
-        0,
-    )?;
-    let predictor_vars = VarMap::new();
-    let predictor = LatentPredictor::new(
-        PredictorConfig { code_size: autoencoder.code_size(), ..Default::default() },
-        &predictor_vars,
-        0,
-    )?;
-    Ok(LatentModel {
-        autoencoder,
-        autoencoder_vars,
-        predictor,
-        predictor_vars,
-        scales: Scales { pressure: 1.0, code: 1.0 },
-    })
-}
-
 fn bench_hybrid_step(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     let sizes: &[usize] = if ctx.quick { &[32] } else { &[32, 64, 128] };
     let reps = if ctx.quick { 5 } else { 21 };
@@ -153,7 +125,7 @@ fn bench_hybrid_step(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         let scene = data_cfg.scene(0.5);
         let fluid = scene.fluid()?;
         let rate = scene.rate()?;
-        let model = untrained_model(n)?;
+        let model = LatentModel::untrained(n)?;
         let mut state = scene.start(&fluid)?;
         for _ in 0..20 {
             state = fluid.step(&state, Some(&rate))?;
