@@ -1,0 +1,28 @@
+//! # pbdl-temporal
+//!
+//! Temporally coherent GAN super-resolution of fluid flows: tempoGAN (Xie, Franz, Chu,
+//! Thuerey 2018) and TecoGAN (Chu, Xie, Mayer, Leal-Taixé, Thuerey 2020) on candle tensors.
+//!
+//! | module | what it gives you |
+//! |---|---|
+//! | [`data`] | smoke plumes from pbdl-grid at the high resolution (varied sources, buoyancy, inflow noise), box-downsampled for the low-resolution input |
+//! | [`warp`] | semi-Lagrangian advection by a known velocity, TecoGAN's backward warp, motion upsampling |
+//! | [`generator`] | the per-frame fluid generator (tempoGAN layout, residual on bicubic) shared by all three training modes |
+//! | [`gan`] | tempoGAN's spatial and temporal discriminator inputs, losses and the discriminator balance |
+//! | [`model`] | a trained generator with its kind, save/load, upscaling of sequences and `.npz` files |
+//! | [`tecogan`] | TecoGAN's frame-recurrent generator with its motion network F, the spatio-temporal triplet discriminator input, the ping-pong loss |
+//! | [`train`] | L1 pre-training, then the baseline, per-frame GAN and temporal GAN objectives from the same weights; resumable runs |
+//!
+//! Image-like tensors are `[batch, channel, y, x]` with row 0 at the bottom (y up).
+#![warn(missing_docs)]
+
+pub mod data;
+pub mod error;
+pub mod gan;
+pub mod generator;
+pub mod model;
+pub mod tecogan;
+pub mod train;
+pub mod warp;
+
+pub use error::{Error, Result};

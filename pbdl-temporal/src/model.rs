@@ -1,0 +1,201 @@
+//! A trained super-resolution model: which objective trained it, its generator, and upscaling
+//! of whole density sequences, from tensors or `.npz` files.
+//!
+//! File format: a pbdl checkpoint (`<path>` safetensors with the generator's variables and a
+//! JSON sidecar holding the [`ModelInfo`]); written atomically.
+//!
+//! `.npz` interface of [`upscale_npz`] (the `cargo xtask temporal upscale` command): the input
+//! holds `density` `[T, 1, Y, X]` (f32 or f64, cell centres, row 0 at the bottom, values
+//! roughly in `[0, 1]`) and may hold `velocity` `[T, 2, Y, X]` in cells per frame; the output
+//! gets `density` `[T, 1, F Y, F X]` (f32).
+//!
+//! ```
+//! use candle_core::{DType, Device, Tensor};
+//! use pbdl_temporal::model::{ModelKind, TemporalModel};
+//! use pbdl_temporal::generator::GeneratorConfig;
+//!
+//! let model = TemporalModel::untrained(ModelKind::Baseline, GeneratorConfig::default(), 0)?;
+//! let lr = Tensor::rand(0f32, 1.0, (5, 1, 16, 16), &Device::Cpu)?;
+//! let hr = model.upscale(&lr, None)?;
+//! assert_eq!(hr.dims(), [5, 1, 64, 64]);
+//! # Ok::<(), pbdl_temporal::Error>(())
+//! ```
+
+use crate::generator::{FrameGenerator, GeneratorConfig};
+use crate::{Error, Result};
+use candle_core::{DType, Device, Tensor};
+use candle_nn::{VarBuilder, VarMap};
+use pbdl_core::io::CheckpointMeta;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Which objective trained a generator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ModelKind {
+    /// L1 to the truth only (no discriminator).
+    Baseline,
+    /// L1 + a spatial discriminator (each frame judged alone).
+    PerFrame,
+    /// L1 + spatial and temporal discriminators (tempoGAN).
+    Temporal,
+}
+
+impl ModelKind {
+    /// All kinds, in the order of the tables.
+    pub const ALL: [ModelKind; 3] = [ModelKind::Baseline, ModelKind::PerFrame, ModelKind::Temporal];
+
+    /// The name used in file names, tables and the CLI.
+    pub fn name(self) -> &'static str {
+        match self {
+            ModelKind::Baseline => "baseline",
+            ModelKind::PerFrame => "per_frame",
+            ModelKind::Temporal => "temporal",
+        }
+    }
+
+    /// The kind named `name` ([`ModelKind::name`]).
+    pub fn parse(name: &str) -> Result<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == name)
+            .ok_or_else(|| Error::config("kind", format!("`{name}`; use one of baseline, per_frame, temporal")))
+    }
+}
+
+/// What a model file records besides the weights.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelInfo {
+    /// The training objective.
+    pub kind: ModelKind,
+    /// The generator's layout.
+    pub generator: GeneratorConfig,
+    /// Generator updates it was trained with.
+    pub updates: u64,
+}
+
+/// A generator with its [`ModelInfo`].
+pub struct TemporalModel {
+    /// What it is.
+    pub info: ModelInfo,
+    /// The generator.
+    pub generator: FrameGenerator,
+    /// Its variables.
+    pub varmap: VarMap,
+}
+
+impl std::fmt::Debug for TemporalModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TemporalModel").field("info", &self.info).finish_non_exhaustive()
+    }
+}
+
+impl TemporalModel {
+    /// A generator with seeded initial weights (`pbdl_nets::seeded_init`).
+    pub fn untrained(kind: ModelKind, generator: GeneratorConfig, seed: u64) -> Result<Self> {
+        let varmap = VarMap::new();
+        let g = FrameGenerator::new(generator.clone(), VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
+        pbdl_nets::seeded_init(&varmap, seed)?;
+        Ok(Self { info: ModelInfo { kind, generator, updates: 0 }, generator: g, varmap })
+    }
+
+    /// Saves weights and info to `path` (atomically).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let config = serde_json::to_value(&self.info).map_err(|e| Error::config("model info", e.to_string()))?;
+        pbdl_core::io::save_varmap(
+            path,
+            &self.varmap,
+            &CheckpointMeta { step: self.info.updates, seed: None, config },
+        )?;
+        Ok(())
+    }
+
+    /// Loads a model saved by [`TemporalModel::save`]; a file of another kind or a corrupt one
+    /// is a typed error naming the path.
+    pub fn load(path: &Path) -> Result<Self> {
+        let meta = pbdl_core::io::read_checkpoint_info(path)?;
+        let info: ModelInfo = serde_json::from_value(meta.config.clone()).map_err(|e| Error::Input {
+            array: path.display().to_string(),
+            reason: format!("not a pbdl-temporal model ({e}); pass a model written by `cargo xtask temporal train`"),
+        })?;
+        let varmap = VarMap::new();
+        let generator =
+            FrameGenerator::new(info.generator.clone(), VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
+        pbdl_core::io::load_varmap(path, &varmap)?;
+        Ok(Self { info, generator, varmap })
+    }
+
+    /// The upscaling factor.
+    pub fn factor(&self) -> usize {
+        self.info.generator.factor
+    }
+
+    /// Upscales a sequence: `density` `[T, 1, Y, X]` (and `velocity` `[T, 2, Y, X]` in cells
+    /// per frame, needed only by generators trained with it) to `[T, 1, F Y, F X]`, frame by
+    /// frame in chunks. Errors name the array: wrong rank or channels, frame counts that
+    /// differ, non-finite values, a missing velocity the generator needs.
+    pub fn upscale(&self, density: &Tensor, velocity: Option<&Tensor>) -> Result<Tensor> {
+        let density = check_sequence("density", density, 1)?;
+        let velocity = velocity.map(|v| check_sequence("velocity", v, 2)).transpose()?;
+        let d = density.dims();
+        if let Some(v) = &velocity {
+            if v.dims()[0] != d[0] || v.dims()[2..] != d[2..] {
+                return Err(Error::input(
+                    "velocity",
+                    format!("{:?}: expected [{}, 2, {}, {}] to match the density", v.dims(), d[0], d[2], d[3]),
+                ));
+            }
+        }
+        if self.info.generator.use_velocity && velocity.is_none() {
+            return Err(Error::input("velocity", "missing: this model was trained with the low-resolution velocity"));
+        }
+        let chunk = 8;
+        let mut out = Vec::with_capacity(d[0].div_ceil(chunk));
+        for start in (0..d[0]).step_by(chunk) {
+            let n = chunk.min(d[0] - start);
+            let v = velocity.as_ref().map(|v| v.narrow(0, start, n)).transpose()?;
+            let v = if self.info.generator.use_velocity { v } else { None };
+            out.push(self.generator.forward(&density.narrow(0, start, n)?, v.as_ref())?.detach());
+        }
+        Ok(Tensor::cat(&out, 0)?)
+    }
+}
+
+/// Checks a `[T, channels, Y, X]` sequence (finite, f32 or f64) and returns it as f32.
+fn check_sequence(name: &str, x: &Tensor, channels: usize) -> Result<Tensor> {
+    let d = x.dims();
+    if d.len() != 4 || d[1] != channels || d.iter().any(|&n| n == 0) {
+        return Err(Error::input(name, format!("shape {d:?}: expected [T, {channels}, Y, X] with T, Y, X > 0")));
+    }
+    let x = match x.dtype() {
+        DType::F32 => x.clone(),
+        DType::F64 | DType::F16 | DType::BF16 => x.to_dtype(DType::F32)?,
+        other => return Err(Error::input(name, format!("dtype {other:?}: use float32 or float64"))),
+    };
+    let bad = x.flatten_all()?.to_vec1::<f32>()?.iter().position(|v| !v.is_finite());
+    if let Some(i) = bad {
+        return Err(Error::input(name, format!("holds a non-finite value at flat index {i}; clean the input first")));
+    }
+    Ok(x)
+}
+
+/// Reads `input` (`density` and optionally `velocity`, see the module docs), upscales it with
+/// `model` and writes `density` to `output` (atomically). Returns the output shape.
+pub fn upscale_npz(model: &TemporalModel, input: &Path, output: &Path) -> Result<Vec<usize>> {
+    let arrays = pbdl_core::io::read_npz(input)?;
+    let find = |name: &str| arrays.iter().find(|(n, _)| n == name || n == &format!("{name}.npy")).map(|(_, t)| t);
+    let density = find("density").ok_or_else(|| {
+        let names: Vec<&str> = arrays.iter().map(|(n, _)| n.as_str()).collect();
+        Error::input(
+            "density",
+            format!(
+                "missing from {} (it holds {names:?}); store the low-resolution density as `density` [T, 1, Y, X]",
+                input.display()
+            ),
+        )
+    })?;
+    let hr = model.upscale(density, find("velocity"))?;
+    pbdl_core::io::write_npz(output, &[("density", &hr)])?;
+    Ok(hr.dims().to_vec())
+}
