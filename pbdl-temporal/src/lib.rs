@@ -8,6 +8,7 @@
 //! | [`data`] | smoke plumes from pbdl-grid at the high resolution (varied sources, buoyancy, inflow noise), box-downsampled for the low-resolution input |
 //! | [`warp`] | semi-Lagrangian advection by a known velocity, TecoGAN's backward warp, motion upsampling |
 //! | [`generator`] | the per-frame fluid generator (tempoGAN layout, residual on bicubic) shared by all three training modes |
+//! | [`eval`] | held-out scores of every model and bicubic: PSNR, SSIM, LSiM, tOF, tLSiM, time per frame vs the solver |
 //! | [`gan`] | tempoGAN's spatial and temporal discriminator inputs, losses and the discriminator balance |
 //! | [`model`] | a trained generator with its kind, save/load, upscaling of sequences and `.npz` files |
 //! | [`tecogan`] | TecoGAN's frame-recurrent generator with its motion network F, the spatio-temporal triplet discriminator input, the ping-pong loss |
@@ -18,6 +19,7 @@
 
 pub mod data;
 pub mod error;
+pub mod eval;
 pub mod gan;
 pub mod generator;
 pub mod model;

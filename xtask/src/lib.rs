@@ -9,6 +9,7 @@
 //! | [`entries`] | one module per library crate with its tour, bench and stress entries |
 //! | [`acceptance`] | runs the `#[ignore]`d tests behind README numbers as child processes (stress entries `acceptance`) |
 //! | [`latent`] | `cargo xtask latent train\|eval` (latent-space physics on 2D smoke), shared with its entries |
+//! | [`temporal`] | `cargo xtask temporal train\|eval\|upscale` (temporally coherent super-resolution of smoke), shared with its entries |
 //! | [`fuzz`] | mutation fuzzing of pbdl's file readers on stable Rust (`cargo xtask stress fuzz`) |
 
 pub mod acceptance;
@@ -17,3 +18,4 @@ pub mod entries;
 pub mod fuzz;
 pub mod latent;
 pub mod registry;
+pub mod temporal;

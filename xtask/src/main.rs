@@ -205,6 +205,10 @@ enum Command {
     /// the LSTM (resumable), evaluate hybrid rollouts against the solver (time vs error).
     #[command(subcommand)]
     Latent(xtask::latent::LatentCommand),
+    /// Temporally coherent super-resolution of smoke (tempoGAN / TecoGAN): train the baseline,
+    /// per-frame GAN and temporal GAN (resumable), score them, upscale an .npz sequence.
+    #[command(subcommand)]
+    Temporal(xtask::temporal::TemporalCommand),
     /// PDE control of forced 1D Burgers (Holl et al. 2020): train the controller (resumable),
     /// evaluate it against the direct optimiser and no control.
     #[command(subcommand)]
@@ -420,6 +424,7 @@ fn main() -> anyhow::Result<()> {
         Command::Sol(cmd) => sol::run_sol(cmd),
         Command::Pconv(cmd) => pconv::run(cmd),
         Command::Latent(cmd) => xtask::latent::run(cmd),
+        Command::Temporal(cmd) => xtask::temporal::run(cmd),
         Command::Control(cmd) => sol::run_control(cmd),
         Command::Ci => ci::run(),
         Command::List => {

@@ -1,0 +1,151 @@
+//! Scores of trained models on held-out clips: per-frame PSNR, SSIM and LSiM to the truth and
+//! the temporal scores tOF and tLSiM (pbdl-metrics' `temporal` module), for every model and
+//! for bicubic upsampling, with the time per generated frame next to the solver's time per
+//! step at the high resolution.
+//!
+//! tLSiM is TecoGAN's tLP with LSiM in place of LPIPS (whose backbone weights are not
+//! available offline): `100 * mean_t |LSiM(gt_{t-1}, gt_t) - LSiM(out_{t-1}, out_t)|`.
+
+use crate::data::{simulate, Clip, SmokeData};
+use crate::model::TemporalModel;
+use crate::Result;
+use candle_core::Tensor;
+use pbdl_core::sample::{resize2d, Resize};
+use pbdl_metrics::temporal::{TemporalOptions, TemporalScores};
+use pbdl_metrics::Lsim;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// One method's scores, means over the held-out clips.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MethodScores {
+    /// `bicubic`, or the model kind's name.
+    pub method: String,
+    /// PSNR in dB (data range 1).
+    pub psnr: f64,
+    /// SSIM (data range 1).
+    pub ssim: f64,
+    /// LSiM distance to the truth (lower is better).
+    pub lsim: f64,
+    /// tOF in high-resolution pixels (lower is better).
+    pub tof: f64,
+    /// tLSiM (lower is better).
+    pub tlsim: f64,
+    /// Wall-clock milliseconds per upscaled frame (batches of 8 frames).
+    pub ms_per_frame: f64,
+}
+
+/// The evaluation of a run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct EvalReport {
+    /// The data settings (the held-out clips are re-simulated from them).
+    pub data: SmokeData,
+    /// Bicubic first, then the models.
+    pub rows: Vec<MethodScores>,
+    /// Wall-clock milliseconds per solver step at the high resolution (with the inflow noise).
+    pub solver_ms_per_step: f64,
+}
+
+/// Bicubic `factor`-times upsampling of `lr` `[T, 1, y, x]`.
+pub fn bicubic(lr: &Tensor, factor: usize) -> Result<Tensor> {
+    let d = lr.dims();
+    Ok(resize2d(lr, (d[2] * factor, d[3] * factor), Resize::Bicubic { align_corners: false })?)
+}
+
+/// Scores of `output` against a clip's truth.
+fn score(output: &Tensor, clip: &Clip, lsim: &Lsim) -> Result<TemporalScores> {
+    let opts = TemporalOptions { data_range: Some(1.0), ..Default::default() };
+    Ok(TemporalScores::compute(output, &clip.hr_density, Some(lsim), &opts)?)
+}
+
+fn mean_row(method: &str, scores: &[TemporalScores], ms_per_frame: f64) -> MethodScores {
+    let n = scores.len().max(1) as f64;
+    let avg = |f: &dyn Fn(&TemporalScores) -> f64| scores.iter().map(f).sum::<f64>() / n;
+    MethodScores {
+        method: method.to_string(),
+        psnr: avg(&|s| s.psnr),
+        ssim: avg(&|s| s.ssim),
+        lsim: avg(&|s| s.lsim.unwrap_or(f64::NAN)),
+        tof: avg(&|s| s.tof),
+        tlsim: avg(&|s| s.tlsim.unwrap_or(f64::NAN)),
+        ms_per_frame,
+    }
+}
+
+/// Scores bicubic upsampling and every model on `clips`.
+pub fn evaluate(models: &[TemporalModel], clips: &[Clip], lsim: &Lsim) -> Result<Vec<MethodScores>> {
+    let factor = models.first().map(|m| m.factor()).unwrap_or(4);
+    let frames: usize = clips.iter().map(|c| c.frames()).sum();
+    let mut rows = Vec::with_capacity(models.len() + 1);
+    let (mut scores, mut seconds) = (Vec::new(), 0.0);
+    for c in clips {
+        let t = Instant::now();
+        let out = bicubic(&c.lr_density, factor)?;
+        seconds += t.elapsed().as_secs_f64();
+        scores.push(score(&out, c, lsim)?);
+    }
+    rows.push(mean_row("bicubic", &scores, seconds * 1e3 / frames as f64));
+    for m in models {
+        let (mut scores, mut seconds) = (Vec::new(), 0.0);
+        for c in clips {
+            let t = Instant::now();
+            let out = m.upscale(&c.lr_density, Some(&c.lr_velocity))?;
+            seconds += t.elapsed().as_secs_f64();
+            scores.push(score(&out, c, lsim)?);
+        }
+        rows.push(mean_row(m.info.kind.name(), &scores, seconds * 1e3 / frames as f64));
+    }
+    Ok(rows)
+}
+
+/// Re-simulates the held-out scenes of `data` (timing the solver) and scores `models` on them
+/// with the published LSiM weights ([`Lsim::load_default`]).
+pub fn evaluate_run(data: &SmokeData, models: &[TemporalModel]) -> Result<EvalReport> {
+    data.validate()?;
+    let (_, test) = data.scenes();
+    let t = Instant::now();
+    let clips: Vec<Clip> = test.iter().map(|s| simulate(data, s)).collect::<Result<_>>()?;
+    let steps = test.len() * (data.warmup + data.frames) * data.steps_per_frame;
+    let solver_ms_per_step = t.elapsed().as_secs_f64() * 1e3 / steps as f64;
+    let lsim = Lsim::load_default()?;
+    Ok(EvalReport { data: data.clone(), rows: evaluate(models, &clips, &lsim)?, solver_ms_per_step })
+}
+
+impl EvalReport {
+    /// The row of `method`.
+    pub fn row(&self, method: &str) -> Option<&MethodScores> {
+        self.rows.iter().find(|r| r.method == method)
+    }
+
+    /// A Markdown table with the ratios the acceptance asks for.
+    pub fn markdown(&self) -> String {
+        let d = &self.data;
+        let mut md = format!(
+            "# temporal eval: {0}^2 -> {1}^2 smoke, {2} held-out scenes x {3} frames (seed {4})\n\n\
+             | method | PSNR (dB) | SSIM | LSiM | tOF (px) | tLSiM | ms / frame |\n|---|---|---|---|---|---|---|\n",
+            d.lr_resolution,
+            d.hr_resolution(),
+            d.test_scenes,
+            d.frames,
+            d.seed
+        );
+        for r in &self.rows {
+            md.push_str(&format!(
+                "| {} | {:.2} | {:.4} | {:.4} | {:.4} | {:.3} | {:.2} |\n",
+                r.method, r.psnr, r.ssim, r.lsim, r.tof, r.tlsim, r.ms_per_frame
+            ));
+        }
+        md.push_str(&format!("\nSolver at {0}^2: {1:.2} ms per step.\n", d.hr_resolution(), self.solver_ms_per_step));
+        if let (Some(t), Some(p)) = (self.row("temporal"), self.row("per_frame")) {
+            md.push_str(&format!(
+                "Temporal / per-frame GAN: tOF {:.3}x, tLSiM {:.3}x (bar <= 0.7x each).\n",
+                t.tof / p.tof,
+                t.tlsim / p.tlsim
+            ));
+        }
+        if let (Some(t), Some(b)) = (self.row("temporal"), self.row("bicubic")) {
+            md.push_str(&format!("Temporal GAN LSiM {:.4} vs bicubic {:.4} (bar: lower).\n", t.lsim, b.lsim));
+        }
+        md
+    }
+}
