@@ -18,6 +18,7 @@
 //! | [`weights`] | reading the converted safetensors weight files with typed errors; where the default weights live |
 //! | [`mod@pool`] | a max-pool with overlapping windows and a backward (candle's has none for kernel != stride) |
 //! | [`files`] | [`files::read_field`] (`.npy`/`.npz`/`.png`) and [`files::compare`]: any metric on two arrays from files, the library side of `cargo xtask metric` |
+//! | [`temporal`] | video/sequence metrics: a dense optical flow ([`temporal::optical_flow`], coarse-to-fine Horn–Schunck with warping), TecoGAN's tOF, tLSiM (TecoGAN's tLP with LSiM in place of LPIPS), per-frame PSNR/SSIM/LSiM, [`temporal::TemporalScores`] |
 //! | [`error`] | [`Error`], [`Result`] |
 //! | [`train`] | training a metric from scratch: solver-generated sequences, LSiM/VolSiM losses and "fit2" ground truth, calibration, Spearman evaluation |
 //!
@@ -48,6 +49,7 @@ pub mod files;
 mod learned;
 pub mod lsim;
 pub mod pool;
+pub mod temporal;
 pub mod train;
 pub mod volsim;
 pub mod weights;
