@@ -11,7 +11,7 @@ use crate::model::TemporalModel;
 use crate::Result;
 use candle_core::Tensor;
 use pbdl_core::sample::{resize2d, Resize};
-use pbdl_metrics::temporal::{TemporalOptions, TemporalScores};
+use pbdl_metrics::temporal::{Crop, TemporalOptions, TemporalScores, TofOptions};
 use pbdl_metrics::Lsim;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -52,9 +52,13 @@ pub fn bicubic(lr: &Tensor, factor: usize) -> Result<Tensor> {
     Ok(resize2d(lr, (d[2] * factor, d[3] * factor), Resize::Bicubic { align_corners: false })?)
 }
 
-/// Scores of `output` against a clip's truth.
+/// Scores of `output` against a clip's truth. tOF uses TecoGAN's centre crop (the middle half
+/// of a 64-pixel side) where the frames are large enough (sides >= 48), else the whole frame.
 fn score(output: &Tensor, clip: &Clip, lsim: &Lsim) -> Result<TemporalScores> {
-    let opts = TemporalOptions { data_range: Some(1.0), ..Default::default() };
+    let d = output.dims();
+    let crop = if d[2].min(d[3]) >= 48 { Crop::TecoGan } else { Crop::None };
+    let tof = TofOptions { crop, ..Default::default() };
+    let opts = TemporalOptions { data_range: Some(1.0), tof };
     Ok(TemporalScores::compute(output, &clip.hr_density, Some(lsim), &opts)?)
 }
 

@@ -15,6 +15,28 @@
 //! | [`train`] | L1 pre-training, then the baseline, per-frame GAN and temporal GAN objectives from the same weights; resumable runs |
 //!
 //! Image-like tensors are `[batch, channel, y, x]` with row 0 at the bottom (y up).
+//!
+//! Quick start (toy size; `cargo xtask temporal train` runs the CPU-size experiment, and
+//! `cargo xtask temporal upscale --model M --input LR.npz --out HR.npz` applies a model):
+//!
+//! ```
+//! use pbdl_temporal::data::{generate, SmokeData};
+//! use pbdl_temporal::generator::GeneratorConfig;
+//! use pbdl_temporal::train::{train_all, PhaseSettings, TrainConfig};
+//!
+//! let data = generate(&SmokeData { lr_resolution: 8, train_scenes: 2, test_scenes: 1, frames: 6, warmup: 16, ..SmokeData::default() })?;
+//! let cfg = TrainConfig {
+//!     generator: GeneratorConfig { channels: 8, ..GeneratorConfig::default() },
+//!     pretrain: PhaseSettings { steps: 5, batch: 4, lr: 1e-3 },
+//!     finetune: PhaseSettings { steps: 2, batch: 2, lr: 2e-4 },
+//!     discriminator_widths: vec![8, 8],
+//!     ..TrainConfig::default()
+//! };
+//! let models = train_all(&data, &cfg, None)?; // baseline, per-frame GAN, temporal GAN
+//! let hr = models[2].0.upscale(&data.test[0].lr_density, None)?;
+//! assert_eq!(hr.dims(), [6, 1, 32, 32]);
+//! # Ok::<(), pbdl_temporal::Error>(())
+//! ```
 #![warn(missing_docs)]
 
 pub mod data;

@@ -165,7 +165,7 @@ impl TemporalModel {
 /// Checks a `[T, channels, Y, X]` sequence (finite, f32 or f64) and returns it as f32.
 fn check_sequence(name: &str, x: &Tensor, channels: usize) -> Result<Tensor> {
     let d = x.dims();
-    if d.len() != 4 || d[1] != channels || d.iter().any(|&n| n == 0) {
+    if d.len() != 4 || d[1] != channels || d.contains(&0) {
         return Err(Error::input(name, format!("shape {d:?}: expected [T, {channels}, Y, X] with T, Y, X > 0")));
     }
     let x = match x.dtype() {

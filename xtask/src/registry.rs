@@ -115,6 +115,7 @@ pub fn all() -> Vec<CrateTasks> {
         crate::entries::nets::tasks(),
         crate::entries::pconv::tasks(),
         crate::entries::latent::tasks(),
+        crate::entries::temporal::tasks(),
         crate::entries::sol::tasks(),
         crate::entries::weather::tasks(),
     ]
