@@ -13,7 +13,7 @@ pub mod particles;
 pub mod pconv;
 pub mod smoke3d;
 pub mod sol;
-pub mod temporal;
 pub mod spectral;
 pub mod stability;
+pub mod temporal;
 pub mod weather;
