@@ -11,7 +11,7 @@
 //! | [`eval`] | held-out scores of every model and bicubic: PSNR, SSIM, LSiM, tOF, tLSiM, time per frame vs the solver |
 //! | [`gan`] | tempoGAN's spatial and temporal discriminator inputs, losses and the discriminator balance |
 //! | [`model`] | a trained generator with its kind, save/load, upscaling of sequences and `.npz` files |
-//! | [`tecogan`] | TecoGAN's frame-recurrent generator with its motion network F, the spatio-temporal triplet discriminator input, the ping-pong loss |
+//! | [`tecogan`] | TecoGAN's frame-recurrent generator with its motion network F, the spatio-temporal triplet discriminator, the ping-pong loss, non-adversarial and adversarial (resumable) trainers |
 //! | [`train`] | L1 pre-training, then the baseline, per-frame GAN and temporal GAN objectives from the same weights; resumable runs |
 //!
 //! Image-like tensors are `[batch, channel, y, x]` with row 0 at the bottom (y up).

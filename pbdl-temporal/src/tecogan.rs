@@ -1,6 +1,7 @@
 //! TecoGAN (Chu, Xie, Mayer, Leal-Taixé, Thuerey 2020) on single-channel densities: the motion
 //! network F, the frame-recurrent generator, the spatio-temporal discriminator's triplet input,
-//! the ping-pong loss, and a non-adversarial trainer for F and G.
+//! the ping-pong loss, a non-adversarial trainer for F and G, and the adversarial trainer
+//! against the spatio-temporal discriminator.
 //!
 //! | item | what it is |
 //! |---|---|
@@ -10,6 +11,7 @@
 //! | [`pingpong_sequence`], [`pingpong_loss`], [`split_pingpong`], [`drift`] | the ping-pong extension `0..T-1, T-2..0` and `mean |g_t - g'_t|` over the frames seen twice |
 //! | [`triplet_input`], [`triplet_flows`], [`spatio_temporal_discriminator`] | D_s,t's 9-channel input (HR triplet, the triplet warped to its middle frame with stop-gradient flows and a 75% centre crop, the bilinearly upsampled LR triplet) and a matching [`pbdl_nets::discriminator::DiscriminatorConfig`] |
 //! | [`TecoTrainConfig`], [`train_tecogan`] | L2 content + LR warp loss for F + optional ping-pong term (weight 0.5 as TecoGAN), Adam, seeded |
+//! | [`TecoGanTrainConfig`], [`train_tecogan_gan`], [`tecogan_gan_players`] | adversarial fine-tuning against D_s,t on generated vs real triplets: content, ping-pong, `-log D(fake)` and D-feature losses, F's warp loss, the D/G balance; run directory, checkpoints, exact resume |
 //!
 //! **Flow convention.** A flow `[B, 2, y, x]` (x component first, in cells of the grid it lives
 //! on) warps the previous frame onto the current one with
@@ -21,8 +23,9 @@
 //! instead of RGB (so G's input is `1 + factor^2` channels and D_s,t's is 9); F is narrower
 //! (`base_width` 16 and 2 levels by default instead of 32 and 3) and its flow is bounded by
 //! `max_flow` = 4 LR cells instead of 24; G has 32 channels and 4 residual blocks instead of 64
-//! and 16 (10 in FRVSR). The upsampling is TecoGAN's: 3x3 transposed convs, stride 2, ReLU. The
-//! trainer is non-adversarial (no VGG or D terms).
+//! and 16 (10 in FRVSR). The upsampling is TecoGAN's: 3x3 transposed convs, stride 2, ReLU.
+//! [`train_tecogan`] is non-adversarial (no VGG or D terms); [`train_tecogan_gan`] adds D_s,t's
+//! adversarial and feature terms but no VGG term.
 //!
 //! ```
 //! use candle_core::{DType, Device, Tensor};
@@ -42,12 +45,14 @@
 //! # Ok::<(), pbdl_temporal::Error>(())
 //! ```
 
+mod adversarial;
 mod motion;
 mod pingpong;
 mod recurrent;
 mod train;
 mod triplet;
 
+pub use adversarial::{tecogan_gan_players, train_tecogan_gan, TecoGanPlayers, TecoGanTrainConfig, TecoGanTrainReport};
 pub use motion::{MotionNet, MotionNetConfig};
 pub use pingpong::{drift, drift_tensor, pingpong_loss, pingpong_sequence, reverse_time, split_pingpong};
 pub use recurrent::{RecurrentGenerator, RecurrentGeneratorConfig, Rollout, SequenceOutput, TecoGan, TecoGanConfig};

@@ -267,10 +267,22 @@ pub fn finetune(
         .transpose()?;
     pbdl_nets::seeded_init(&varmap, cfg.seed ^ 0xd15c)?;
     copy_into(&start.varmap, &varmap, "gen")?;
-    let config = json(&serde_json::json!({
+    // Only the settings this objective depends on, so that e.g. another temporal weight
+    // retrains the temporal GAN but resumes the other two.
+    let mut settings = serde_json::json!({
         "phase": kind.name(), "data": data.config, "generator": cfg.generator, "pretrain": cfg.pretrain,
-        "batch": t.batch, "lr": t.lr, "loss": cfg.loss, "discriminator_widths": widths, "balance": cfg.balance, "seed": cfg.seed,
-    }))?;
+        "batch": t.batch, "lr": t.lr, "seed": cfg.seed, "loss": { "l1": cfg.loss.l1 },
+    });
+    if kind != ModelKind::Baseline {
+        settings["loss"]["spatial"] = cfg.loss.spatial.into();
+        settings["loss"]["feature"] = cfg.loss.feature.into();
+        settings["discriminator_widths"] = serde_json::json!(widths);
+        settings["balance"] = cfg.balance.into();
+    }
+    if kind == ModelKind::Temporal {
+        settings["loss"]["temporal"] = cfg.loss.temporal.into();
+    }
+    let config = json(&settings)?;
     let lc = loop_config(t.steps, run_dir, &config)?;
     let run = TrainLoop::resume(&varmap, lc)?;
     let all_vars: Vec<Var> = ["gen", "ds", "dt"].iter().flat_map(|p| vars_with_prefix(&varmap, p)).collect();

@@ -11,6 +11,7 @@
 
 use anyhow::Context as _;
 use pbdl_temporal::data::{generate, SmokeData};
+use pbdl_temporal::gan::LossWeights;
 use pbdl_temporal::generator::GeneratorConfig;
 use pbdl_temporal::model::{upscale_npz, ModelKind, TemporalModel};
 use pbdl_temporal::train::{train_all, PhaseSettings, TrainConfig};
@@ -54,6 +55,9 @@ pub struct TrainArgs {
     /// Generator width.
     #[arg(long, default_value_t = 32)]
     pub channels: usize,
+    /// Weight of the temporal discriminator's term in the temporal GAN's generator loss.
+    #[arg(long, default_value_t = 1.0)]
+    pub temporal_weight: f64,
     /// Seed of the scenes, the weights and the batches.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -123,6 +127,7 @@ pub fn configs(a: &TrainArgs) -> (SmokeData, TrainConfig) {
         generator: GeneratorConfig { channels: a.channels, ..Default::default() },
         pretrain: PhaseSettings { steps: a.pretrain_steps, ..base.pretrain.clone() },
         finetune: PhaseSettings { steps: a.steps, ..base.finetune.clone() },
+        loss: LossWeights { temporal: a.temporal_weight, ..base.loss.clone() },
         seed: a.seed,
         ..base
     };
