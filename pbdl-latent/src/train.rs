@@ -113,19 +113,7 @@ pub fn pressure_scale(train: &[Sequence]) -> Result<f32> {
 
 /// Where a phase writes, and the loop settings for it.
 pub(crate) fn loop_config(steps: u64, dir: Option<&Path>, config: &serde_json::Value) -> Result<LoopConfig> {
-    Ok(match dir {
-        None => LoopConfig { steps, progress: false, ..Default::default() },
-        Some(d) => {
-            pbdl_core::train::check_resume(d, config, steps)?;
-            LoopConfig {
-                steps,
-                checkpoint_every: (steps / 10).max(1),
-                dir: Some(d.to_path_buf()),
-                progress: true,
-                ..Default::default()
-            }
-        }
-    })
+    Ok(pbdl_core::train::guarded_loop_config(steps, dir, config)?)
 }
 
 /// One training phase on pbdl-core's [`TrainLoop`]: Adam on `t`'s schedule; with a run

@@ -28,7 +28,7 @@ use crate::{Error, Result};
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{Optimizer, VarBuilder, VarMap};
 use pbdl_core::io::CheckpointMeta;
-use pbdl_core::train::{AdamConfig, LoopConfig, OptimizerConfig, TrainLoop, Update};
+use pbdl_core::train::{AdamConfig, OptimizerConfig, TrainLoop, Update};
 use pbdl_nets::discriminator::{bce_with_logits, Discriminator, DiscriminatorConfig};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -141,22 +141,6 @@ fn json<T: Serialize>(t: &T) -> Result<serde_json::Value> {
     Ok(pbdl_core::train::canonical(v)?)
 }
 
-fn loop_config(steps: u64, dir: Option<&Path>, config: &serde_json::Value) -> Result<LoopConfig> {
-    Ok(match dir {
-        None => LoopConfig { steps, progress: false, ..Default::default() },
-        Some(d) => {
-            pbdl_core::train::check_resume(d, config, steps)?;
-            LoopConfig {
-                steps,
-                checkpoint_every: (steps / 10).max(1),
-                dir: Some(d.to_path_buf()),
-                progress: true,
-                ..Default::default()
-            }
-        }
-    })
-}
-
 fn summary(report: &pbdl_core::train::LoopReport) -> PhaseSummary {
     let l = &report.losses;
     let tail = &l[l.len() - (l.len() / 10).max(1).min(l.len())..];
@@ -200,7 +184,7 @@ pub fn pretrain(data: &Dataset, cfg: &TrainConfig, run_dir: Option<&Path>) -> Re
     let config = json(&serde_json::json!({
         "phase": "pretrain", "data": data.config, "generator": cfg.generator, "batch": t.batch, "lr": t.lr, "seed": cfg.seed,
     }))?;
-    let lc = loop_config(t.steps, run_dir, &config)?;
+    let lc = pbdl_core::train::guarded_loop_config(t.steps, run_dir, &config)?;
     let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, ..Default::default() });
     let meta = |step| CheckpointMeta { step, seed: Some(cfg.seed), config: config.clone() };
     let use_v = cfg.generator.use_velocity;
@@ -233,8 +217,8 @@ fn copy_into(src: &VarMap, dst: &VarMap, prefix: &str) -> Result<()> {
     Ok(())
 }
 
-/// The variables of `map` whose names start with `prefix.`.
-fn vars_with_prefix(map: &VarMap, prefix: &str) -> Vec<Var> {
+/// The variables of `map` whose names start with `prefix.`, in name order.
+pub(crate) fn vars_with_prefix(map: &VarMap, prefix: &str) -> Vec<Var> {
     let d = map.data().lock().unwrap_or_else(|e| e.into_inner());
     let mut named: Vec<(&String, &Var)> = d.iter().filter(|(n, _)| n.starts_with(&format!("{prefix}."))).collect();
     named.sort_by(|a, b| a.0.cmp(b.0));
@@ -283,7 +267,7 @@ pub fn finetune(
         settings["loss"]["temporal"] = cfg.loss.temporal.into();
     }
     let config = json(&settings)?;
-    let lc = loop_config(t.steps, run_dir, &config)?;
+    let lc = pbdl_core::train::guarded_loop_config(t.steps, run_dir, &config)?;
     let run = TrainLoop::resume(&varmap, lc)?;
     let all_vars: Vec<Var> = ["gen", "ds", "dt"].iter().flat_map(|p| vars_with_prefix(&varmap, p)).collect();
     let adam = OptimizerConfig::Adam(AdamConfig { lr: t.lr, beta1: 0.5, ..Default::default() });

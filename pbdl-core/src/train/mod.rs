@@ -72,7 +72,7 @@ pub use guard::NanGuard;
 pub use log::{LogFormat, LogRow, ScalarLog};
 pub use optim::{AdamConfig, AdamW, AdamWConfig, Optim, OptimState, OptimizerConfig, Sgd, SgdConfig};
 pub use progress::Progress;
-pub use resume::{canonical, check_resume, logged_losses};
+pub use resume::{canonical, check_resume, guarded_loop_config, logged_losses};
 pub use run::{AfterStep, Evaluate, Evaluation, LoopConfig, LoopReport, NoEval, NoHook, StopReason, TrainLoop, Update};
 pub use schedule::{LrScheduler, PlateauConfig, ScheduleConfig};
 pub use state::{

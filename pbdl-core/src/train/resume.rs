@@ -96,6 +96,26 @@ fn first_difference(stored: &Value, given: &Value) -> Option<(String, String, St
     all.into_iter().enumerate().min_by_key(|(i, d)| (rank(&d.0), *i)).map(|(_, d)| d)
 }
 
+/// The [`LoopConfig`](super::LoopConfig) of one training phase of `steps` updates: without a
+/// run directory an in-memory run without a progress bar; with one, the directory is first
+/// checked by [`check_resume`] against `config`, then the run writes a checkpoint every tenth of
+/// its updates and shows its progress. The settings a method's resumable phases share.
+pub fn guarded_loop_config(steps: u64, dir: Option<&Path>, config: &Value) -> Result<super::LoopConfig> {
+    Ok(match dir {
+        None => super::LoopConfig { steps, progress: false, ..Default::default() },
+        Some(d) => {
+            check_resume(d, config, steps)?;
+            super::LoopConfig {
+                steps,
+                checkpoint_every: (steps / 10).max(1),
+                dir: Some(d.to_path_buf()),
+                progress: true,
+                ..Default::default()
+            }
+        }
+    })
+}
+
 /// Refuses to resume `dir` when its newest checkpoint was written with another `config` than
 /// the given one, or holds more than `steps` updates; nothing is loaded. A directory without
 /// checkpoints (or no directory) passes.

@@ -6,12 +6,13 @@ use super::recurrent::{TecoGan, TecoGanConfig};
 use super::triplet::{spatio_temporal_discriminator, triplet_flows, triplet_input};
 use crate::data::Clip;
 use crate::gan::Balance;
+use crate::train::vars_with_prefix;
 use crate::warp::backward_warp;
 use crate::{Error, Result};
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{Optimizer, VarBuilder, VarMap};
 use pbdl_core::io::CheckpointMeta;
-use pbdl_core::train::{AdamConfig, LoopConfig, OptimizerConfig, TrainLoop, Update};
+use pbdl_core::train::{AdamConfig, OptimizerConfig, TrainLoop, Update};
 use pbdl_nets::discriminator::{bce_with_logits, Discriminator};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -109,26 +110,17 @@ impl TecoGanTrainConfig {
                 format!("{}; use at least {min_frames} so that a sequence holds a frame triplet", self.frames),
             ));
         }
-        for (name, w) in [
-            ("content_weight", self.content_weight),
-            ("pingpong_weight", self.pingpong_weight),
-            ("adversarial_weight", self.adversarial_weight),
-            ("feature_weight", self.feature_weight),
-            ("warp_weight", self.warp_weight),
-        ] {
-            if !(w >= 0.0 && w.is_finite()) {
-                return Err(Error::config(name, format!("{w}; use a finite weight >= 0")));
-            }
-        }
-        if self.pingpong_weight > 0.0 && !self.pingpong_sequences {
-            return Err(Error::config(
-                "pingpong_weight",
-                format!(
-                    "{} without pingpong_sequences; turn pingpong_sequences on or set the weight to 0",
-                    self.pingpong_weight
-                ),
-            ));
-        }
+        super::train::check_loss_weights(
+            &[
+                ("content_weight", self.content_weight),
+                ("pingpong_weight", self.pingpong_weight),
+                ("adversarial_weight", self.adversarial_weight),
+                ("feature_weight", self.feature_weight),
+                ("warp_weight", self.warp_weight),
+            ],
+            self.pingpong_weight,
+            self.pingpong_sequences,
+        )?;
         if self.discriminator_widths.is_empty() || self.discriminator_widths.contains(&0) {
             return Err(Error::config(
                 "discriminator_widths",
@@ -262,14 +254,6 @@ pub fn tecogan_gan_players(cfg: &TecoGanTrainConfig, start: Option<&VarMap>) -> 
         }
     }
     Ok(TecoGanPlayers { model, model_varmap, discriminator, varmap })
-}
-
-/// The variables of `map` whose names start with `prefix.`, sorted by name.
-fn vars_with_prefix(map: &VarMap, prefix: &str) -> Vec<Var> {
-    let d = map.data().lock().unwrap_or_else(|e| e.into_inner());
-    let mut named: Vec<(&String, &Var)> = d.iter().filter(|(n, _)| n.starts_with(&format!("{prefix}."))).collect();
-    named.sort_by(|a, b| a.0.cmp(b.0));
-    named.into_iter().map(|(_, v)| v.clone()).collect()
 }
 
 /// FNV-1a over the names and the bits of the tensors (as f32), for the resume guard.
@@ -444,19 +428,7 @@ pub fn train_tecogan_gan(
         o.insert("start_digest".into(), start_digest.into());
     }
     let identity = pbdl_core::train::canonical(identity)?;
-    let lc = match run_dir {
-        None => LoopConfig { steps: cfg.steps, progress: false, ..Default::default() },
-        Some(d) => {
-            pbdl_core::train::check_resume(d, &identity, cfg.steps)?;
-            LoopConfig {
-                steps: cfg.steps,
-                checkpoint_every: (cfg.steps / 10).max(1),
-                dir: Some(d.to_path_buf()),
-                progress: true,
-                ..Default::default()
-            }
-        }
-    };
+    let lc = pbdl_core::train::guarded_loop_config(cfg.steps, run_dir, &identity)?;
     let run = TrainLoop::resume(&varmap, lc)?;
     let all_vars: Vec<Var> = ["g", "d"].iter().flat_map(|p| vars_with_prefix(&varmap, p)).collect();
     let adam = OptimizerConfig::Adam(AdamConfig { lr: cfg.lr, beta1: 0.5, ..Default::default() });

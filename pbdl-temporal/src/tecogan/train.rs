@@ -72,26 +72,37 @@ impl TecoTrainConfig {
         if self.frames < 2 {
             return Err(Error::config("frames", format!("{}; use at least 2 frames per sequence", self.frames)));
         }
-        for (name, w) in [
-            ("pingpong_weight", self.pingpong_weight),
-            ("content_weight", self.content_weight),
-            ("warp_weight", self.warp_weight),
-        ] {
-            if !(w >= 0.0 && w.is_finite()) {
-                return Err(Error::config(name, format!("{w}; use a finite weight >= 0")));
-            }
-        }
-        if self.pingpong_weight > 0.0 && !self.pingpong_sequences {
-            return Err(Error::config(
-                "pingpong_weight",
-                format!(
-                    "{} without pingpong_sequences; turn pingpong_sequences on or set the weight to 0",
-                    self.pingpong_weight
-                ),
-            ));
-        }
-        Ok(())
+        check_loss_weights(
+            &[
+                ("pingpong_weight", self.pingpong_weight),
+                ("content_weight", self.content_weight),
+                ("warp_weight", self.warp_weight),
+            ],
+            self.pingpong_weight,
+            self.pingpong_sequences,
+        )
     }
+}
+
+/// Every named weight finite and `>= 0`, and a ping-pong weight only with ping-pong sequences
+/// (typed [`Error::Config`] naming the weight).
+pub(crate) fn check_loss_weights(
+    named: &[(&'static str, f64)],
+    pingpong_weight: f64,
+    pingpong_sequences: bool,
+) -> Result<()> {
+    for &(name, w) in named {
+        if !(w >= 0.0 && w.is_finite()) {
+            return Err(Error::config(name, format!("{w}; use a finite weight >= 0")));
+        }
+    }
+    if pingpong_weight > 0.0 && !pingpong_sequences {
+        return Err(Error::config(
+            "pingpong_weight",
+            format!("{pingpong_weight} without pingpong_sequences; turn pingpong_sequences on or set the weight to 0"),
+        ));
+    }
+    Ok(())
 }
 
 /// What [`train_tecogan`] did.
