@@ -240,7 +240,8 @@ pub fn box_downsample(x: &Tensor, factor: usize) -> Result<Tensor> {
 }
 
 /// Cell-centred velocity `[B, 2, n, n]` of a MAC velocity: each component the mean of its two
-/// faces (the face below `x = 0` / `y = 0` is a wall at rest in these scenes).
+/// faces. The unstored faces at `x = 0` and `y = 0` are taken as walls at rest (0), as in these
+/// scenes; for other boundaries at the low sides the first column / row is off.
 pub fn centred_velocity(u: &MacField) -> Result<Tensor> {
     let v = u.values();
     let shift = |c: usize, axis: usize| -> Result<Tensor> {
@@ -291,7 +292,14 @@ pub fn simulate(cfg: &SmokeData, scene: &SmokeScene) -> Result<Clip> {
             state = fluid.step(&state, Some(&rate))?;
         }
         if frame >= cfg.warmup {
-            let d = state.density.as_ref().expect("the plume has a density").values();
+            let d = state
+                .density
+                .as_ref()
+                .ok_or_else(|| Error::NonFinite {
+                    what: "plume density",
+                    detail: "the solver returned no density".into(),
+                })?
+                .values();
             den.push((d / cfg.density_scale)?);
             vel.push((centred_velocity(&state.velocity)? * vel_scale)?);
         }

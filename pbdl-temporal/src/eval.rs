@@ -49,11 +49,16 @@ pub struct EvalReport {
 /// Bicubic `factor`-times upsampling of `lr` `[T, 1, y, x]`.
 pub fn bicubic(lr: &Tensor, factor: usize) -> Result<Tensor> {
     let d = lr.dims();
+    if d.len() != 4 || factor == 0 {
+        return Err(crate::Error::input("density", format!("{d:?}: expected [T, 1, y, x] (and a factor >= 1)")));
+    }
     Ok(resize2d(lr, (d[2] * factor, d[3] * factor), Resize::Bicubic { align_corners: false })?)
 }
 
 /// Scores of `output` against a clip's truth. tOF uses TecoGAN's centre crop (the middle half
-/// of a 64-pixel side) where the frames are large enough (sides >= 48), else the whole frame.
+/// of a 64-pixel side) where the frames are large enough (sides >= 48), else the whole frame;
+/// the flow is estimated on the whole frame and averaged over the crop (TecoGAN crops first),
+/// and every frame pair counts (TecoGAN's script drops the first and last two frames).
 fn score(output: &Tensor, clip: &Clip, lsim: &Lsim) -> Result<TemporalScores> {
     let d = output.dims();
     let crop = if d[2].min(d[3]) >= 48 { Crop::TecoGan } else { Crop::None };
@@ -78,7 +83,17 @@ fn mean_row(method: &str, scores: &[TemporalScores], ms_per_frame: f64) -> Metho
 
 /// Scores bicubic upsampling and every model on `clips`.
 pub fn evaluate(models: &[TemporalModel], clips: &[Clip], lsim: &Lsim) -> Result<Vec<MethodScores>> {
-    let factor = models.first().map(|m| m.factor()).unwrap_or(4);
+    // The clips' own factor (high over low resolution); a model of another factor is refused.
+    let factor = match clips.first() {
+        Some(c) => c.hr_density.dim(3)? / c.lr_density.dim(3)?.max(1),
+        None => return Ok(Vec::new()),
+    };
+    if let Some(m) = models.iter().find(|m| m.factor() != factor) {
+        return Err(crate::Error::config(
+            "model factor",
+            format!("{} model upscales {}x but the clips are {factor}x apart", m.info.kind.name(), m.factor()),
+        ));
+    }
     let frames: usize = clips.iter().map(|c| c.frames()).sum();
     let mut rows = Vec::with_capacity(models.len() + 1);
     let (mut scores, mut seconds) = (Vec::new(), 0.0);

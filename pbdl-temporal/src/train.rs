@@ -18,7 +18,11 @@
 //!
 //! Deviations from tempoGAN for CPU scale: narrower 3x3 generator (see
 //! [`crate::generator`]), one discriminator and one generator update per iteration instead of
-//! two each, discriminators without batch norm, L1 pre-training before the adversarial phase.
+//! two each, discriminators without batch norm, L1 pre-training before the adversarial phase,
+//! one Adam for all players (its bias-correction counter advances on every player's update).
+//! The balance gates both discriminators but is computed from `D_s` alone (`mean log D_s(real)`
+//! and the generator's spatial adversarial loss); its average starts at 0 without bias
+//! correction. The feature loss averages over channels (`gan::feature_loss`).
 
 use crate::data::{Clip, Dataset};
 use crate::gan::{feature_loss, spatial_input, temporal_input, Balance, LossWeights};
@@ -109,6 +113,9 @@ impl TrainConfig {
                     self.generator.factor, data.config.factor
                 ),
             ));
+        }
+        if data.train.is_empty() {
+            return Err(Error::config("data.train", "no training clips; generate at least one scene"));
         }
         if data.train.iter().any(|c| c.frames() < 3) {
             return Err(Error::config("data.frames", "the GAN phase needs at least 3 frames per clip"));
@@ -275,9 +282,7 @@ pub fn finetune(
     let mut balance = Balance::default();
     if let Some(ck) = run.resumed() {
         ck.restore_optimizer(&mut opt.borrow_mut(), &varmap)?;
-        if let Ok(b) = ck.extra_tensor("balance_average") {
-            balance.average = b.to_vec1::<f64>()?[0];
-        }
+        balance.average = ck.extra_tensor("balance_average")?.to_vec1::<f64>()?[0];
     }
     let balance = RefCell::new(balance);
     let gen_vars: Vec<Var> = vars_with_prefix(&varmap, "gen");

@@ -173,13 +173,30 @@ pub fn run(cmd: TemporalCommand) -> anyhow::Result<()> {
         TemporalCommand::Train(a) => {
             let (data_cfg, cfg) = configs(&a);
             std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+            // A run directory of other data is refused before anything is simulated or written
+            // (each phase's own guard then checks the training settings).
+            if a.out.join("data.json").exists() {
+                let stored: SmokeData = read_json(&a.out, "data.json")?;
+                if stored != data_cfg {
+                    anyhow::bail!(
+                        "{}: the run in this directory was made with other data settings (data.json: seed {}, {} + {} scenes of {} frames at {}^2); use a new run directory, or the same settings",
+                        a.out.display(),
+                        stored.seed,
+                        stored.train_scenes,
+                        stored.test_scenes,
+                        stored.frames,
+                        stored.lr_resolution
+                    );
+                }
+            }
             let t = std::time::Instant::now();
             let data = generate(&data_cfg)?;
             let sim_seconds = t.elapsed().as_secs_f64();
-            write_json(a.out.join("data.json"), &data_cfg)?;
-            write_json(a.out.join("train.json"), &cfg)?;
             let t = std::time::Instant::now();
             let models = train_all(&data, &cfg, Some(&a.out))?;
+            // The settings are written once the models they describe exist.
+            write_json(a.out.join("data.json"), &data_cfg)?;
+            write_json(a.out.join("train.json"), &cfg)?;
             let train_seconds = t.elapsed().as_secs_f64();
             let phases: Vec<serde_json::Value> =
                 models.iter().map(|(m, s)| serde_json::json!({ "kind": m.info.kind, "phase": s })).collect();

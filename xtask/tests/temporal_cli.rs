@@ -46,6 +46,10 @@ fn train_resumes_eval_scores_and_upscale_reads_npz() {
     let out = xtask(&["temporal", "train", "--quick", "--seed", "5", "--out", r]);
     assert!(!out.status.success());
     assert!(stderr(&out).contains("seed"), "{}", stderr(&out));
+    // The refused call left the run's settings as they were.
+    let data: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("data.json")).unwrap()).unwrap();
+    assert_eq!(data["seed"], 0);
     // Eval: bicubic + three models, finite scores.
     let table = tmp.path().join("eval");
     let out = xtask(&["temporal", "eval", "--run", r, "--out", table.to_str().unwrap()]);

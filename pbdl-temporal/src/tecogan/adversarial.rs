@@ -46,8 +46,8 @@ pub struct TecoGanTrainConfig {
     pub pingpong_weight: f64,
     /// Weight of the non-saturating adversarial loss `-log D(fake)` (TecoGAN: 0.01).
     pub adversarial_weight: f64,
-    /// Weight of each level's D-feature loss `mean |phi_l(real) - phi_l(fake)| / norm_l`
-    /// (TecoGAN: 0.02; real features detached).
+    /// Weight of each level's D-feature loss `mean_pixels sum_channels |phi_l(real) -
+    /// phi_l(fake)| / norm_l` (TecoGAN's reduction and weight 0.02; real features detached).
     pub feature_weight: f64,
     /// The per-level normalisers `norm_l`, one per entry of `discriminator_widths` (> 0;
     /// TecoGAN: `[12, 14, 24, 100]` for its four levels). Default `[12, 14, 24, 100]`.
@@ -401,7 +401,10 @@ fn triplets(seq: &Tensor, k: usize) -> Result<Tensor> {
 /// Deviations from TecoGAN at CPU scale: see [`crate::tecogan`] for F and G; D_s,t has no
 /// batch norm and a head on the spatial mean instead of a per-pixel one, widths
 /// `[16, 32, 64, 64]` instead of `[64, 64, 128, 256]` and no leading stride-1 conv; one D and
-/// one G update per iteration.
+/// one G update per iteration; one Adam for all players (TecoGAN has one per network: here the
+/// bias-correction counter advances on D and G updates alike, the moments are per variable);
+/// the balance average starts at 0 without bias correction, so it holds D back only after
+/// roughly the first 50 updates.
 pub fn train_tecogan_gan(
     clips: &[Clip],
     cfg: &TecoGanTrainConfig,
@@ -493,7 +496,8 @@ pub fn train_tecogan_gan(
             let adversarial = bce_with_logits(&fake_out.logits, 1.0)?;
             let mut feature = Tensor::zeros((), DType::F32, &dev)?;
             for ((r, f), norm) in real_feats.iter().zip(&fake_out.features).zip(&cfg.feature_norms) {
-                feature = (feature + ((r.detach() - f)?.abs()?.mean_all()? / *norm)?)?;
+                // TecoGAN: mean over batch and pixels of the channel sum of |diff|, over the norm.
+                feature = (feature + ((r.detach() - f)?.abs()?.sum_keepdim(1)?.mean_all()? / *norm)?)?;
             }
             let mut loss = ((&content * cfg.content_weight)? + (&warp * cfg.warp_weight)?)?;
             if let Some(pp) = &pp {

@@ -194,7 +194,8 @@ pub fn train_tecogan(clips: &[Clip], cfg: &TecoTrainConfig) -> Result<(TecoGan, 
             let out = model.run_batch(&lr)?;
             let content = (&out.hr - &hr)?.sqr()?.mean_all()?;
             let t = lr.dim(1)?;
-            let flows = out.lr_flows.as_ref().expect("at least 2 frames");
+            let flows =
+                out.lr_flows.as_ref().ok_or_else(|| Error::config("frames", "at least 2 frames per sequence"))?;
             let (b, n, m) = (lr.dim(0)?, lr.dim(3)?, lr.dim(4)?);
             let prev = lr.narrow(1, 0, t - 1)?.reshape((b * (t - 1), 1, n, m))?;
             let cur = lr.narrow(1, 1, t - 1)?.reshape((b * (t - 1), 1, n, m))?;
