@@ -25,12 +25,12 @@ pub struct MethodScores {
     pub psnr: f64,
     /// SSIM (data range 1).
     pub ssim: f64,
-    /// LSiM distance to the truth (lower is better).
-    pub lsim: f64,
+    /// LSiM distance to the truth (lower is better); `None` without the LSiM weights.
+    pub lsim: Option<f64>,
     /// tOF in high-resolution pixels (lower is better).
     pub tof: f64,
-    /// tLSiM (lower is better).
-    pub tlsim: f64,
+    /// tLSiM (lower is better); `None` without the LSiM weights.
+    pub tlsim: Option<f64>,
     /// Wall-clock milliseconds per upscaled frame (batches of 8 frames).
     pub ms_per_frame: f64,
 }
@@ -59,12 +59,12 @@ pub fn bicubic(lr: &Tensor, factor: usize) -> Result<Tensor> {
 /// of a 64-pixel side) where the frames are large enough (sides >= 48), else the whole frame;
 /// the flow is estimated on the whole frame and averaged over the crop (TecoGAN crops first),
 /// and every frame pair counts (TecoGAN's script drops the first and last two frames).
-fn score(output: &Tensor, clip: &Clip, lsim: &Lsim) -> Result<TemporalScores> {
+fn score(output: &Tensor, clip: &Clip, lsim: Option<&Lsim>) -> Result<TemporalScores> {
     let d = output.dims();
     let crop = if d[2].min(d[3]) >= 48 { Crop::TecoGan } else { Crop::None };
     let tof = TofOptions { crop, ..Default::default() };
     let opts = TemporalOptions { data_range: Some(1.0), tof };
-    Ok(TemporalScores::compute(output, &clip.hr_density, Some(lsim), &opts)?)
+    Ok(TemporalScores::compute(output, &clip.hr_density, lsim, &opts)?)
 }
 
 fn mean_row(method: &str, scores: &[TemporalScores], ms_per_frame: f64) -> MethodScores {
@@ -74,15 +74,26 @@ fn mean_row(method: &str, scores: &[TemporalScores], ms_per_frame: f64) -> Metho
         method: method.to_string(),
         psnr: avg(&|s| s.psnr),
         ssim: avg(&|s| s.ssim),
-        lsim: avg(&|s| s.lsim.unwrap_or(f64::NAN)),
+        lsim: scores.iter().all(|s| s.lsim.is_some()).then(|| avg(&|s| s.lsim.unwrap_or(f64::NAN))),
         tof: avg(&|s| s.tof),
-        tlsim: avg(&|s| s.tlsim.unwrap_or(f64::NAN)),
+        tlsim: scores.iter().all(|s| s.tlsim.is_some()).then(|| avg(&|s| s.tlsim.unwrap_or(f64::NAN))),
         ms_per_frame,
     }
 }
 
-/// Scores bicubic upsampling and every model on `clips`.
-pub fn evaluate(models: &[TemporalModel], clips: &[Clip], lsim: &Lsim) -> Result<Vec<MethodScores>> {
+/// The published LSiM network if its weights are found (`pbdl_metrics::weights::weights_dir`:
+/// `PBDL_WEIGHTS_DIR` or `../shared/weights`), `None` if there are none; a weight file that is
+/// there but does not load is an error.
+pub fn default_lsim() -> Result<Option<Lsim>> {
+    match pbdl_metrics::weights::weights_dir() {
+        Some(dir) if dir.join(pbdl_metrics::weights::LSIM_FILE).is_file() => Ok(Some(Lsim::load_default()?)),
+        _ => Ok(None),
+    }
+}
+
+/// Scores bicubic upsampling and every model on `clips`; the LSiM-based scores only with
+/// `lsim`.
+pub fn evaluate(models: &[TemporalModel], clips: &[Clip], lsim: Option<&Lsim>) -> Result<Vec<MethodScores>> {
     // The clips' own factor (high over low resolution); a model of another factor is refused.
     let factor = match clips.first() {
         Some(c) => c.hr_density.dim(3)? / c.lr_density.dim(3)?.max(1),
@@ -117,8 +128,8 @@ pub fn evaluate(models: &[TemporalModel], clips: &[Clip], lsim: &Lsim) -> Result
     Ok(rows)
 }
 
-/// Re-simulates the held-out scenes of `data` (timing the solver) and scores `models` on them
-/// with the published LSiM weights ([`Lsim::load_default`]).
+/// Re-simulates the held-out scenes of `data` (timing the solver) and scores `models` on them,
+/// with LSiM and tLSiM when the published LSiM weights are found ([`default_lsim`]).
 pub fn evaluate_run(data: &SmokeData, models: &[TemporalModel]) -> Result<EvalReport> {
     data.validate()?;
     let (_, test) = data.scenes();
@@ -126,8 +137,29 @@ pub fn evaluate_run(data: &SmokeData, models: &[TemporalModel]) -> Result<EvalRe
     let clips: Vec<Clip> = test.iter().map(|s| simulate(data, s)).collect::<Result<_>>()?;
     let steps = test.len() * (data.warmup + data.frames) * data.steps_per_frame;
     let solver_ms_per_step = t.elapsed().as_secs_f64() * 1e3 / steps as f64;
-    let lsim = Lsim::load_default()?;
-    Ok(EvalReport { data: data.clone(), rows: evaluate(models, &clips, &lsim)?, solver_ms_per_step })
+    let lsim = default_lsim()?;
+    Ok(EvalReport { data: data.clone(), rows: evaluate(models, &clips, lsim.as_ref())?, solver_ms_per_step })
+}
+
+/// The header of a Markdown table of [`MethodScores::markdown_row`]s, with its separator.
+pub const MARKDOWN_HEADER: &str =
+    "| method | PSNR (dB) | SSIM | LSiM | tOF (px) | tLSiM | ms / frame |\n|---|---|---|---|---|---|---|";
+
+impl MethodScores {
+    /// `| method | psnr | ssim | lsim | tof | tlsim | ms |`; LSiM scores not computed show `-`.
+    pub fn markdown_row(&self) -> String {
+        let opt = |v: Option<f64>, digits: usize| v.map_or_else(|| "-".to_string(), |v| format!("{v:.digits$}"));
+        format!(
+            "| {} | {:.2} | {:.4} | {} | {:.4} | {} | {:.2} |",
+            self.method,
+            self.psnr,
+            self.ssim,
+            opt(self.lsim, 4),
+            self.tof,
+            opt(self.tlsim, 3),
+            self.ms_per_frame
+        )
+    }
 }
 
 impl EvalReport {
@@ -140,8 +172,7 @@ impl EvalReport {
     pub fn markdown(&self) -> String {
         let d = &self.data;
         let mut md = format!(
-            "# temporal eval: {0}^2 -> {1}^2 smoke, {2} held-out scenes x {3} frames (seed {4})\n\n\
-             | method | PSNR (dB) | SSIM | LSiM | tOF (px) | tLSiM | ms / frame |\n|---|---|---|---|---|---|---|\n",
+            "# temporal eval: {0}^2 -> {1}^2 smoke, {2} held-out scenes x {3} frames (seed {4})\n\n{MARKDOWN_HEADER}\n",
             d.lr_resolution,
             d.hr_resolution(),
             d.test_scenes,
@@ -149,21 +180,24 @@ impl EvalReport {
             d.seed
         );
         for r in &self.rows {
-            md.push_str(&format!(
-                "| {} | {:.2} | {:.4} | {:.4} | {:.4} | {:.3} | {:.2} |\n",
-                r.method, r.psnr, r.ssim, r.lsim, r.tof, r.tlsim, r.ms_per_frame
-            ));
+            md.push_str(&r.markdown_row());
+            md.push('\n');
         }
         md.push_str(&format!("\nSolver at {0}^2: {1:.2} ms per step.\n", d.hr_resolution(), self.solver_ms_per_step));
         if let (Some(t), Some(p)) = (self.row("temporal"), self.row("per_frame")) {
+            let tlsim = match (t.tlsim, p.tlsim) {
+                (Some(a), Some(b)) => format!("{:.3}x", a / b),
+                _ => "- (no LSiM weights)".into(),
+            };
             md.push_str(&format!(
-                "Temporal / per-frame GAN: tOF {:.3}x, tLSiM {:.3}x (bar <= 0.7x each).\n",
-                t.tof / p.tof,
-                t.tlsim / p.tlsim
+                "Temporal / per-frame GAN: tOF {:.3}x, tLSiM {tlsim} (bar <= 0.7x each).\n",
+                t.tof / p.tof
             ));
         }
         if let (Some(t), Some(b)) = (self.row("temporal"), self.row("bicubic")) {
-            md.push_str(&format!("Temporal GAN LSiM {:.4} vs bicubic {:.4} (bar: lower).\n", t.lsim, b.lsim));
+            if let (Some(a), Some(c)) = (t.lsim, b.lsim) {
+                md.push_str(&format!("Temporal GAN LSiM {a:.4} vs bicubic {c:.4} (bar: lower).\n"));
+            }
         }
         md
     }

@@ -8,7 +8,7 @@ use crate::temporal::{configs, TrainArgs};
 use candle_core::{Device, Tensor};
 use pbdl_core::viz::{rollout_to_gif, GifStyle};
 use pbdl_temporal::data::{generate, SmokeData};
-use pbdl_temporal::eval::{bicubic, evaluate};
+use pbdl_temporal::eval::{bicubic, default_lsim, evaluate, MARKDOWN_HEADER};
 use pbdl_temporal::generator::GeneratorConfig;
 use pbdl_temporal::model::{ModelKind, TemporalModel};
 use pbdl_temporal::tecogan::{
@@ -69,8 +69,8 @@ fn tour_superres(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     let t = Instant::now();
     let models: Vec<TemporalModel> = train_all(&data, &cfg, None)?.into_iter().map(|(m, _)| m).collect();
     let train_seconds = t.elapsed().as_secs_f64();
-    let lsim = pbdl_metrics::Lsim::load_default()?;
-    let rows = evaluate(&models, &data.test, &lsim)?;
+    let lsim = default_lsim()?;
+    let rows = evaluate(&models, &data.test, lsim.as_ref())?;
     let clip = &data.test[0];
     let f = data_cfg.factor;
     let pick = |k: ModelKind| models.iter().find(|m| m.info.kind == k).expect("trained");
@@ -88,19 +88,17 @@ fn tour_superres(ctx: &TaskContext) -> TaskResult<TourOutcome> {
     let path = ctx.out_dir.join("temporal_superres_plume.gif");
     rollout_to_gif(&path, &frames, n, 4 * n, &GifStyle::default())?;
     let mut md = format!(
-        "Temporally coherent super-resolution, {0}^2 -> {1}^2 plumes ({2} + {3} scenes of {4} frames), three models trained in {train_seconds:.0} s from one L1 pre-training.\n\n\
-         | method | PSNR (dB) | SSIM | LSiM | tOF (px) | tLSiM | ms / frame |\n|---|---|---|---|---|---|---|\n",
+        "Temporally coherent super-resolution, {0}^2 -> {1}^2 plumes ({2} + {3} scenes of {4} frames), three models trained in {train_seconds:.0} s from one L1 pre-training{5}.\n\n{MARKDOWN_HEADER}\n",
         data_cfg.lr_resolution,
         n,
         data.train.len(),
         data.test.len(),
-        data_cfg.frames
+        data_cfg.frames,
+        if lsim.is_none() { " (no LSiM weights found: LSiM and tLSiM not computed)" } else { "" }
     );
     for r in &rows {
-        md.push_str(&format!(
-            "| {} | {:.2} | {:.4} | {:.4} | {:.4} | {:.3} | {:.2} |\n",
-            r.method, r.psnr, r.ssim, r.lsim, r.tof, r.tlsim, r.ms_per_frame
-        ));
+        md.push_str(&r.markdown_row());
+        md.push('\n');
     }
     md.push_str("\n![bicubic | per-frame GAN | temporal GAN | truth](temporal_superres_plume.gif)\n");
     let tour_rows = rows
@@ -110,7 +108,7 @@ fn tour_superres(ctx: &TaskContext) -> TaskResult<TourOutcome> {
             seconds: r.ms_per_frame * 1e-3,
             error: Some(r.tof),
             error_kind: "tOF (px)".into(),
-            note: format!("LSiM {:.4}, tLSiM {:.3}, PSNR {:.2} dB", r.lsim, r.tlsim, r.psnr),
+            note: format!("LSiM {:?}, tLSiM {:?}, PSNR {:.2} dB", r.lsim, r.tlsim, r.psnr),
         })
         .collect();
     Ok(TourOutcome { rows: tour_rows, files: vec![path], markdown: md })
