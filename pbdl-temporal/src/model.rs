@@ -150,7 +150,8 @@ impl TemporalModel {
         if self.info.generator.use_velocity && velocity.is_none() {
             return Err(Error::input("velocity", "missing: this model was trained with the low-resolution velocity"));
         }
-        let chunk = 8;
+        // Up to 8 frames per forward, fewer for large frames (memory grows with f^2 Y X).
+        let chunk = ((1usize << 16) / (d[2] * d[3]).max(1)).clamp(1, 8);
         let mut out = Vec::with_capacity(d[0].div_ceil(chunk));
         for start in (0..d[0]).step_by(chunk) {
             let n = chunk.min(d[0] - start);
