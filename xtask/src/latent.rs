@@ -8,6 +8,7 @@
 //! rollouts (solver every `i`-th step) against the pure solver: `<out>.md`, `<out>.json` and a
 //! Pareto plot `<out>.png` (ms per step against the density error).
 
+use crate::run_files::write_json;
 use anyhow::Context as _;
 use pbdl_core::viz::{pareto_plot, ParetoPoint, PlotStyle};
 use pbdl_latent::autoencoder::AutoencoderConfig;
@@ -125,12 +126,6 @@ pub fn configs(a: &TrainArgs) -> (PlumeData, LatentTrainConfig) {
         ..LatentTrainConfig::default()
     };
     (data, cfg)
-}
-
-fn write_json(path: PathBuf, v: &impl serde::Serialize) -> anyhow::Result<()> {
-    let json = serde_json::to_vec_pretty(v)?;
-    pbdl_core::io::write_atomic(path, |w| std::io::Write::write_all(w, &json))?;
-    Ok(())
 }
 
 /// Runs `cargo xtask latent ...`.

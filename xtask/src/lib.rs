@@ -10,6 +10,7 @@
 //! | [`acceptance`] | runs the `#[ignore]`d tests behind README numbers as child processes (stress entries `acceptance`) |
 //! | [`latent`] | `cargo xtask latent train\|eval` (latent-space physics on 2D smoke), shared with its entries |
 //! | [`temporal`] | `cargo xtask temporal train\|eval\|upscale` (temporally coherent super-resolution of smoke), shared with its entries |
+//! | [`run_files`] | JSON settings and results of a run directory, written atomically, read back with errors that name the file |
 //! | [`fuzz`] | mutation fuzzing of pbdl's file readers on stable Rust (`cargo xtask stress fuzz`) |
 
 pub mod acceptance;
@@ -18,4 +19,5 @@ pub mod entries;
 pub mod fuzz;
 pub mod latent;
 pub mod registry;
+pub mod run_files;
 pub mod temporal;

@@ -12,7 +12,7 @@
 
 use anyhow::{ensure, Context as _};
 use candle_core::{DType, Device, Tensor};
-use pbdl_core::io::{latest_checkpoint, load_checkpoint, load_varmap, save_checkpoint, write_atomic, CheckpointMeta};
+use pbdl_core::io::{latest_checkpoint, load_checkpoint, load_varmap, save_checkpoint, CheckpointMeta};
 use pbdl_core::train::ClipConfig;
 use pbdl_core::viz::{line_plot, PlotStyle, Series};
 use pbdl_sol::control::{
@@ -25,6 +25,7 @@ use pbdl_sol::sil::{
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use xtask::run_files::{write_json, write_text};
 
 /// `cargo xtask sol ...`.
 #[derive(clap::Subcommand)]
@@ -146,18 +147,6 @@ fn read_config<T: DeserializeOwned>(path: &Path) -> anyhow::Result<T> {
         serde_json::from_str(&text)
             .with_context(|| format!("--config {}: not a valid JSON settings file", path.display()))
     }
-}
-
-fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
-    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
-    }
-    write_atomic(path, |w| std::io::Write::write_all(w, text.as_bytes()))?;
-    Ok(())
-}
-
-fn write_json(path: &Path, value: &impl Serialize) -> anyhow::Result<()> {
-    write_text(path, &(serde_json::to_string_pretty(value)? + "\n"))
 }
 
 /// `out` with `ext` in place of its extension, if it has one of ours.
@@ -410,7 +399,7 @@ fn sol_train(args: SolTrainArgs) -> anyhow::Result<()> {
         "final_loss_mean_last_100": tail,
         "seconds_this_call": trained.seconds,
     });
-    write_json(&args.out.join("summary.json"), &summary)?;
+    write_json(args.out.join("summary.json"), &summary)?;
     println!(
         "{} (seed {}): {n} updates ({} in this call, {:.1} s), mean loss of the last 100 {tail:.4e}; wrote {}",
         variant.name(),
@@ -545,8 +534,8 @@ fn sol_eval(args: SolEvalArgs) -> anyhow::Result<()> {
         "steps": n, "held_out_re": res, "columns": labels, "rows": rows, "scene": settings,
         "seconds": t0.elapsed().as_secs_f64(),
     });
-    write_json(&with_ext(&args.out, "json"), &json)?;
-    write_text(&with_ext(&args.out, "md"), &md)?;
+    write_json(with_ext(&args.out, "json"), &json)?;
+    write_text(with_ext(&args.out, "md"), &md)?;
     println!("{md}");
     println!("wrote {} (.md, .json, .png)", with_ext(&args.out, "md").with_extension("").display());
     Ok(())
@@ -691,7 +680,7 @@ fn control_train(args: ControlTrainArgs) -> anyhow::Result<()> {
         "end_to_end": { "updates": e2e.losses.len(), "final_loss_mean_last_20": e2e.tail_mean(20) },
         "seconds_this_call": t0.elapsed().as_secs_f64(),
     });
-    write_json(&args.out.join("summary.json"), &summary)?;
+    write_json(args.out.join("summary.json"), &summary)?;
     println!("wrote {}", args.out.display());
     Ok(())
 }
@@ -807,8 +796,8 @@ fn control_eval(run: &Path, out: &Path) -> anyhow::Result<()> {
         ));
     }
     let json = serde_json::json!({ "run": run, "settings": settings, "rows": rows });
-    write_json(&with_ext(out, "json"), &json)?;
-    write_text(&with_ext(out, "md"), &md)?;
+    write_json(with_ext(out, "json"), &json)?;
+    write_text(with_ext(out, "md"), &md)?;
     println!("{md}");
     println!("wrote {} (.md, .json)", with_ext(out, "md").with_extension("").display());
     Ok(())

@@ -9,6 +9,7 @@
 //! table (per-frame PSNR / SSIM / LSiM, tOF, tLSiM, time per frame against the solver's time
 //! per step): `<out>.md` and `<out>.json`. `upscale` runs a model on an `.npz` file.
 
+use crate::run_files::write_json;
 use anyhow::Context as _;
 use pbdl_temporal::data::{generate, SmokeData};
 use pbdl_temporal::gan::LossWeights;
@@ -134,17 +135,8 @@ pub fn configs(a: &TrainArgs) -> (SmokeData, TrainConfig) {
     (data, cfg)
 }
 
-fn write_json(path: PathBuf, v: &impl serde::Serialize) -> anyhow::Result<()> {
-    let json = serde_json::to_vec_pretty(v)?;
-    pbdl_core::io::write_atomic(path, |w| std::io::Write::write_all(w, &json))?;
-    Ok(())
-}
-
 fn read_json<T: serde::de::DeserializeOwned>(run: &Path, name: &str) -> anyhow::Result<T> {
-    let path = run.join(name);
-    let text = std::fs::read_to_string(&path)
-        .with_context(|| format!("{}: not a `temporal train` run directory (no {name})", run.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{}", path.display()))
+    crate::run_files::read_json(run, name, "temporal train")
 }
 
 /// The model file of `path`: the file itself, or a run directory's temporal GAN.
