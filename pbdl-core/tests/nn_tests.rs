@@ -420,3 +420,32 @@ fn candle_fused_norms_silently_drop_gradients() {
     let grads = nn::softmax(x.as_tensor(), D::Minus1).unwrap().mul(&w).unwrap().sum_all().unwrap().backward().unwrap();
     assert!(grads.get(x.as_tensor()).is_some());
 }
+
+// ---------------------------------------------------------------- max pooling
+
+#[test]
+fn max_pool_gradient_at_kernel_equal_stride_and_overlapping_windows() {
+    let x = randn(&[2, 3, 8, 8], 0.0, 1.0, 31);
+    grad_ok("max_pool2d(2, 2)", |xs| Ok(nn::max_pool2d(&xs[0], 2, 2)?), std::slice::from_ref(&x));
+    grad_ok("max_pool2d(4, 2)", |xs| Ok(nn::max_pool2d(&xs[0], 4, 2)?), &[x]);
+}
+
+/// candle 0.11's `max_pool2d(2)` backward returns a quarter of the true input gradient
+/// (docs/candle-traps.md). This test pins the gap: if a candle upgrade fixes it, it fails, and
+/// `nn::max_pool2d` may be dropped in favour of candle's.
+#[test]
+fn candle_max_pool2d_backward_is_four_times_too_small() {
+    let x = candle_core::Var::from_tensor(&randn(&[1, 2, 6, 6], 0.0, 1.0, 32)).unwrap();
+    let ours = nn::max_pool2d(x.as_tensor(), 2, 2).unwrap();
+    let theirs = x.as_tensor().max_pool2d(2).unwrap();
+    assert_eq!(vec(&ours), vec(&theirs), "forward values agree");
+    let g_ours = ours.sum_all().unwrap().backward().unwrap().get(&x).unwrap().clone();
+    let g_theirs = theirs.sum_all().unwrap().backward().unwrap().get(&x).unwrap().clone();
+    // Sum of the input gradient = number of windows (one 1 per window) for the true gradient.
+    let (s_ours, s_theirs) = (vec(&g_ours).iter().sum::<f64>(), vec(&g_theirs).iter().sum::<f64>());
+    assert_eq!(s_ours, 18.0, "one unit of gradient per window (2 channels x 3 x 3)");
+    assert!(
+        (s_theirs - s_ours / 4.0).abs() < 1e-12,
+        "candle's gradient sum {s_theirs} (ours {s_ours}): the gap changed"
+    );
+}

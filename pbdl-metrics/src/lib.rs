@@ -16,7 +16,7 @@
 //! | [`NormScope`] | per-pair (default) or official whole-call input normalisation, for both learned metrics |
 //! | [`convert`] | the official legacy `.pth` checkpoints (our own pickle reader) to the safetensors layout of [`weights`]; `cargo xtask weights convert` |
 //! | [`weights`] | reading the converted safetensors weight files with typed errors; where the default weights live |
-//! | [`mod@pool`] | a max-pool with overlapping windows and a backward (candle's has none for kernel != stride) |
+//! | [`mod@pool`] | re-export of [`pbdl_core::nn::max_pool2d`] (overlapping windows with a backward; candle's has none for kernel != stride) |
 //! | [`files`] | [`files::read_field`] (`.npy`/`.npz`/`.png`) and [`files::compare`]: any metric on two arrays from files, the library side of `cargo xtask metric` |
 //! | [`temporal`] | video/sequence metrics: a dense optical flow ([`temporal::optical_flow`], coarse-to-fine Horn–Schunck with warping), TecoGAN's tOF, tLSiM (TecoGAN's tLP with LSiM in place of LPIPS), per-frame PSNR/SSIM/LSiM, [`temporal::TemporalScores`] |
 //! | [`error`] | [`Error`], [`Result`] |

@@ -1,4 +1,4 @@
-//! Normalisation layers, softmax and activations that train: every one has a backward.
+//! Normalisation layers, pooling, softmax and activations that train: every one has a backward.
 //!
 //! candle 0.11 has fast fused kernels for `softmax_last_dim`, `layer_norm` and `rms_norm`
 //! (and its `LayerNorm` / `RmsNorm` modules use them on contiguous input), but those kernels
@@ -14,6 +14,7 @@
 //! | [`batch_norm_train`], [`batch_norm_eval`] | `[batch, channel, ..]` per channel over batch and space (batch or running statistics), fused with an activation | [`BatchNorm2d`] |
 //! | [`rms_norm`] | over the trailing dims, `x / sqrt(mean(x^2) + eps)` | [`RmsNorm`] |
 //! | [`softmax`], [`log_softmax`] | over one chosen dim, shifted by the (detached) max for stability | |
+//! | [`max_pool2d`] | `[batch, channel, y, x]`: max over square windows of any kernel and stride (PyTorch's floor mode), with a backward (candle's is missing or wrong) | |
 //! | [`activation`] | `relu`, `gelu`, `gelu_erf`, `silu`, `elu`, `leaky_relu`, `sigmoid`, `softplus`, `mish`, ... | [`Activation`] |
 //!
 //! The variance is the biased one (divide by `n`), as in PyTorch. Half-precision inputs are
@@ -49,6 +50,7 @@ mod fused;
 pub use fused::{fusion_enabled, with_composed};
 mod layers;
 mod norm;
+pub mod pool;
 mod softmax;
 
 pub use activation::Activation;
@@ -58,4 +60,5 @@ pub use batch_norm::{
 };
 pub use layers::{GroupNorm, GroupNormConfig, LayerNorm, LayerNormConfig, RmsNorm, RmsNormConfig};
 pub use norm::{group_norm, group_norm_act, group_norm_composed, layer_norm, rms_norm};
+pub use pool::max_pool2d;
 pub use softmax::{log_softmax, softmax};

@@ -56,7 +56,7 @@ impl MotionNetConfig {
 /// channel 1 the current one) to the flow `[B, 2, n, m]` in low-resolution cells that warps the
 /// previous frame onto the current one (`backward_warp(prev, flow) ~ cur`).
 ///
-/// Layout: per encoder level two 3x3 convs + leaky ReLU 0.2 and a 2x max-pool (pbdl-metrics' PyTorch-style pool); per decoder
+/// Layout: per encoder level two 3x3 convs + leaky ReLU 0.2 and a 2x max-pool (pbdl_core::nn's PyTorch-style pool); per decoder
 /// level two 3x3 convs + leaky ReLU 0.2 and a bilinear 2x upsample (half-pixel centres); a 3x3
 /// conv to `base_width` + leaky ReLU, a 3x3 conv to 2, `tanh * max_flow`. Zero padding.
 /// Variables: `enc.{l}.{0,1}.*`, `dec.{l}.{0,1}.*`, `head.{0,1}.*`.
@@ -119,7 +119,7 @@ impl MotionNet {
             // Not candle's `max_pool2d`: its backward (candle 0.11) multiplies the gradient by
             // (ties / 4) instead of dividing by the ties, a 4x too small gradient for F's
             // encoder (caught by the finite-difference test of the ping-pong loss).
-            h = pbdl_metrics::pool::max_pool2d(&h, 2, 2)?;
+            h = pbdl_core::nn::max_pool2d(&h, 2, 2)?;
         }
         for [c0, c1] in &self.dec {
             h = c1.forward_act(&c0.forward_act(&h, LEAKY)?, LEAKY)?;
