@@ -5,7 +5,13 @@
 //! ```text
 //! cargo run --release -p pbdl-temporal --example tecogan_gan -- [--pre-steps 200]
 //!     [--gan-steps 100] [--train-scenes 8] [--test-scenes 2] [--seed 0] [--out gan.json]
+//!     [--save DIR]
 //! ```
+//!
+//! `--save DIR` writes the three models as recurrent model files (`pretrained.safetensors`,
+//! `gan_pingpong.safetensors`, `gan_no_pingpong.safetensors`, each with its JSON sidecar), which
+//! `cargo xtask temporal upscale --model DIR/gan_pingpong.safetensors --input LR.npz --out HR.npz`
+//! applies to a low-resolution sequence.
 //!
 //! Protocol: smoke data 16^2 -> 64^2 (`SmokeData` defaults except the scene counts); one
 //! pre-training with `train_tecogan` (defaults: L2 content + warp + ping-pong 0.5); from its
@@ -21,6 +27,7 @@ use candle_core::{DType, Tensor};
 use pbdl_core::sample::{resize2d, Resize};
 use pbdl_metrics::temporal::{tof, TofOptions};
 use pbdl_temporal::data::{generate, Clip, SmokeData};
+use pbdl_temporal::model::{RecurrentModel, RecurrentModelInfo};
 use pbdl_temporal::tecogan::{
     drift, pingpong_sequence, split_pingpong, train_tecogan, train_tecogan_gan, TecoGan, TecoGanTrainConfig,
     TecoTrainConfig,
@@ -38,10 +45,12 @@ struct Args {
     test_scenes: usize,
     seed: u64,
     out: Option<String>,
+    save: Option<std::path::PathBuf>,
 }
 
 fn args() -> Args {
-    let mut a = Args { pre_steps: 200, gan_steps: 100, train_scenes: 8, test_scenes: 2, seed: 0, out: None };
+    let mut a =
+        Args { pre_steps: 200, gan_steps: 100, train_scenes: 8, test_scenes: 2, seed: 0, out: None, save: None };
     let v: Vec<String> = std::env::args().skip(1).collect();
     let mut i = 0;
     while i < v.len() {
@@ -53,6 +62,7 @@ fn args() -> Args {
             "--test-scenes" => a.test_scenes = val.parse().expect("--test-scenes N"),
             "--seed" => a.seed = val.parse().expect("--seed N"),
             "--out" => a.out = Some(val),
+            "--save" => a.save = Some(val.into()),
             other => panic!("unknown argument {other}"),
         }
         i += 2;
@@ -113,13 +123,26 @@ fn main() -> pbdl_temporal::Result<()> {
     let pre_seconds = t0.elapsed().as_secs_f64();
     let pre_eval = evaluate(&pre, &data.test)?;
     println!("pre-trained ({} updates, {pre_seconds:.0}s): {pre_eval}", a.pre_steps);
+    let save = |name: &str, objective: &str, updates: u64, varmap: &candle_nn::VarMap| -> pbdl_temporal::Result<()> {
+        if let Some(dir) = &a.save {
+            std::fs::create_dir_all(dir).map_err(|e| pbdl_core::Error::io(dir, e))?;
+            let info = RecurrentModelInfo { tecogan: pre_cfg.model.clone(), objective: objective.into(), updates };
+            let path = dir.join(format!("{name}.safetensors"));
+            RecurrentModel::new(info, varmap.clone())?.save(&path)?;
+            println!("saved {}", path.display());
+        }
+        Ok(())
+    };
+    save("pretrained", "content+warp+pingpong", a.pre_steps, &pre_map)?;
 
     let mut runs = Vec::new();
     for weight in [0.5, 0.0] {
         let cfg =
             TecoGanTrainConfig { steps: a.gan_steps, pingpong_weight: weight, seed: a.seed, ..Default::default() };
         let t0 = Instant::now();
-        let (model, _, rep) = train_tecogan_gan(&data.train, &cfg, Some(&pre_map), None)?;
+        let (model, model_map, rep) = train_tecogan_gan(&data.train, &cfg, Some(&pre_map), None)?;
+        let name = if weight > 0.0 { "gan_pingpong" } else { "gan_no_pingpong" };
+        save(name, &format!("adversarial, ping-pong weight {weight}"), a.pre_steps + a.gan_steps, &model_map)?;
         let seconds = t0.elapsed().as_secs_f64();
         let eval = evaluate(&model, &data.test)?;
         let tail = |v: &[f64]| mean(&v[v.len() - (v.len() / 5).max(1)..]);

@@ -1,8 +1,15 @@
 //! A trained super-resolution model: which objective trained it, its generator, and upscaling
 //! of whole density sequences, from tensors or `.npz` files.
 //!
-//! File format: a pbdl checkpoint (`<path>` safetensors with the generator's variables and a
-//! JSON sidecar holding the [`ModelInfo`]); written atomically.
+//! Two kinds of model file, both a pbdl checkpoint (`<path>` safetensors with the variables and
+//! a JSON sidecar), written atomically:
+//! * [`TemporalModel`]: a per-frame generator (baseline, per-frame GAN or temporal GAN), sidecar
+//!   [`ModelInfo`];
+//! * [`RecurrentModel`]: TecoGAN's F and G (`fnet.*`, `generator.*`), sidecar
+//!   [`RecurrentModelInfo`].
+//!
+//! [`LoadedModel::load`] tells them apart by the sidecar, and every kind upscales through the
+//! [`Upscale`] trait.
 //!
 //! `.npz` interface of [`upscale_npz`] (the `cargo xtask temporal upscale` command): the input
 //! holds `density` `[T, 1, Y, X]` (f32 or f64, cell centres, row 0 at the bottom, values
@@ -22,6 +29,7 @@
 //! ```
 
 use crate::generator::{FrameGenerator, GeneratorConfig};
+use crate::tecogan::{TecoGan, TecoGanConfig};
 use crate::{Error, Result};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
@@ -115,6 +123,12 @@ impl TemporalModel {
     /// is a typed error naming the path.
     pub fn load(path: &Path) -> Result<Self> {
         let meta = pbdl_core::io::read_checkpoint_info(path)?;
+        if meta.config.get("tecogan").is_some() {
+            return Err(Error::input(
+                path.display().to_string(),
+                "a recurrent TecoGAN model, not a per-frame generator; load it with RecurrentModel::load or LoadedModel::load",
+            ));
+        }
         let info: ModelInfo = serde_json::from_value(meta.config.clone()).map_err(|e| Error::Input {
             array: path.display().to_string(),
             reason: format!("not a pbdl-temporal model ({e}); pass a model written by `cargo xtask temporal train`"),
@@ -181,9 +195,196 @@ fn check_sequence(name: &str, x: &Tensor, channels: usize) -> Result<Tensor> {
     Ok(x)
 }
 
+/// What a recurrent model file records besides the weights.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecurrentModelInfo {
+    /// F's and G's layout.
+    pub tecogan: TecoGanConfig,
+    /// How it was trained, e.g. `"content+pingpong"` or `"adversarial"` (free text for tables).
+    pub objective: String,
+    /// Generator updates it was trained with.
+    pub updates: u64,
+}
+
+/// TecoGAN's motion network F and recurrent generator G with their [`RecurrentModelInfo`].
+pub struct RecurrentModel {
+    /// What it is.
+    pub info: RecurrentModelInfo,
+    /// F and G.
+    pub model: TecoGan,
+    /// Their variables (`fnet.*`, `generator.*`).
+    pub varmap: VarMap,
+}
+
+impl std::fmt::Debug for RecurrentModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RecurrentModel").field("info", &self.info).finish_non_exhaustive()
+    }
+}
+
+impl RecurrentModel {
+    /// Wraps trained variables (the `VarMap` that [`crate::tecogan::train_tecogan`] or
+    /// [`crate::tecogan::train_tecogan_gan`] returns); errors if `varmap` lacks a variable of
+    /// `info.tecogan`'s layout or holds one of another shape.
+    pub fn new(info: RecurrentModelInfo, varmap: VarMap) -> Result<Self> {
+        let expected = {
+            let probe = VarMap::new();
+            TecoGan::new(info.tecogan.clone(), VarBuilder::from_varmap(&probe, DType::F32, &Device::Cpu))?;
+            let data = probe.data().lock().expect("fresh VarMap").clone();
+            data.into_iter().map(|(name, var)| (name, var.dims().to_vec())).collect::<Vec<_>>()
+        };
+        {
+            let data = varmap.data().lock().map_err(|_| Error::config("varmap", "poisoned lock"))?;
+            for (name, dims) in &expected {
+                match data.get(name) {
+                    Some(v) if v.dims() == dims.as_slice() => {}
+                    Some(v) => {
+                        return Err(Error::config(
+                            "varmap",
+                            format!("`{name}` has shape {:?}, the configured TecoGAN needs {dims:?}", v.dims()),
+                        ))
+                    }
+                    None => {
+                        return Err(Error::config(
+                            "varmap",
+                            format!("has no `{name}`; pass the VarMap a TecoGAN trainer returned with this config"),
+                        ))
+                    }
+                }
+            }
+        }
+        let model = TecoGan::new(info.tecogan.clone(), VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
+        Ok(Self { info, model, varmap })
+    }
+
+    /// Saves weights and info to `path` (atomically).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let config = serde_json::to_value(&self.info).map_err(|e| Error::config("model info", e.to_string()))?;
+        pbdl_core::io::save_varmap(
+            path,
+            &self.varmap,
+            &CheckpointMeta { step: self.info.updates, seed: None, config },
+        )?;
+        Ok(())
+    }
+
+    /// Loads a model saved by [`RecurrentModel::save`]; another kind of file is a typed error
+    /// naming the path.
+    pub fn load(path: &Path) -> Result<Self> {
+        match LoadedModel::load(path)? {
+            LoadedModel::Recurrent(m) => Ok(m),
+            LoadedModel::PerFrame(_) => Err(Error::input(
+                path.display().to_string(),
+                "a per-frame generator, not a recurrent TecoGAN model; load it with TemporalModel::load",
+            )),
+        }
+    }
+
+    /// The upscaling factor.
+    pub fn factor(&self) -> usize {
+        self.model.factor()
+    }
+}
+
+/// Anything that upscales a low-resolution density sequence.
+pub trait Upscale {
+    /// The upscaling factor `F`.
+    fn factor(&self) -> usize;
+
+    /// `density` `[T, 1, Y, X]` (and `velocity` `[T, 2, Y, X]` in cells per frame where the model
+    /// uses it) to `[T, 1, F Y, F X]`, f32, without a graph.
+    fn upscale(&self, density: &Tensor, velocity: Option<&Tensor>) -> Result<Tensor>;
+}
+
+impl Upscale for TemporalModel {
+    fn factor(&self) -> usize {
+        TemporalModel::factor(self)
+    }
+
+    fn upscale(&self, density: &Tensor, velocity: Option<&Tensor>) -> Result<Tensor> {
+        TemporalModel::upscale(self, density, velocity)
+    }
+}
+
+impl Upscale for RecurrentModel {
+    fn factor(&self) -> usize {
+        RecurrentModel::factor(self)
+    }
+
+    /// Frame by frame through a [`crate::tecogan::Rollout`] (memory independent of `T`); F
+    /// estimates the motion itself, so a given `velocity` is checked but not used.
+    fn upscale(&self, density: &Tensor, velocity: Option<&Tensor>) -> Result<Tensor> {
+        let density = check_sequence("density", density, 1)?;
+        if let Some(v) = velocity {
+            let v = check_sequence("velocity", v, 2)?;
+            let (d, vd) = (density.dims(), v.dims());
+            if vd[0] != d[0] || vd[2..] != d[2..] {
+                return Err(Error::input(
+                    "velocity",
+                    format!("{vd:?}: expected [{}, 2, {}, {}] to match the density", d[0], d[2], d[3]),
+                ));
+            }
+        }
+        self.model.infer_sequence(&density)
+    }
+}
+
+/// A model file of either kind, told apart by its sidecar.
+#[derive(Debug)]
+pub enum LoadedModel {
+    /// A per-frame generator ([`TemporalModel`]).
+    PerFrame(TemporalModel),
+    /// TecoGAN's F and G ([`RecurrentModel`]).
+    Recurrent(RecurrentModel),
+}
+
+impl LoadedModel {
+    /// Loads `path`, whichever kind it is; a file that is neither is a typed error naming it.
+    pub fn load(path: &Path) -> Result<Self> {
+        let meta = pbdl_core::io::read_checkpoint_info(path)?;
+        if meta.config.get("tecogan").is_some() {
+            let info: RecurrentModelInfo = serde_json::from_value(meta.config.clone()).map_err(|e| Error::Input {
+                array: path.display().to_string(),
+                reason: format!("a recurrent model file with an unreadable sidecar ({e})"),
+            })?;
+            let varmap = VarMap::new();
+            let model = TecoGan::new(info.tecogan.clone(), VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
+            pbdl_core::io::load_varmap(path, &varmap)?;
+            return Ok(LoadedModel::Recurrent(RecurrentModel { info, model, varmap }));
+        }
+        Ok(LoadedModel::PerFrame(TemporalModel::load(path)?))
+    }
+
+    /// A short name of what it is, for messages.
+    pub fn describe(&self) -> String {
+        match self {
+            LoadedModel::PerFrame(m) => format!("per-frame generator ({})", m.info.kind.name()),
+            LoadedModel::Recurrent(m) => format!("recurrent TecoGAN ({})", m.info.objective),
+        }
+    }
+}
+
+impl Upscale for LoadedModel {
+    fn factor(&self) -> usize {
+        match self {
+            LoadedModel::PerFrame(m) => m.factor(),
+            LoadedModel::Recurrent(m) => m.factor(),
+        }
+    }
+
+    fn upscale(&self, density: &Tensor, velocity: Option<&Tensor>) -> Result<Tensor> {
+        match self {
+            LoadedModel::PerFrame(m) => Upscale::upscale(m, density, velocity),
+            LoadedModel::Recurrent(m) => Upscale::upscale(m, density, velocity),
+        }
+    }
+}
+
 /// Reads `input` (`density` and optionally `velocity`, see the module docs), upscales it with
-/// `model` and writes `density` to `output` (atomically). Returns the output shape.
-pub fn upscale_npz(model: &TemporalModel, input: &Path, output: &Path) -> Result<Vec<usize>> {
+/// `model` (any [`Upscale`]: a [`TemporalModel`], a [`RecurrentModel`] or a [`LoadedModel`])
+/// and writes `density` to `output` (atomically). Returns the output shape.
+pub fn upscale_npz(model: &impl Upscale, input: &Path, output: &Path) -> Result<Vec<usize>> {
     let arrays = pbdl_core::io::read_npz(input)?;
     let find = |name: &str| arrays.iter().find(|(n, _)| n == name || n == &format!("{name}.npy")).map(|(_, t)| t);
     let density = find("density").ok_or_else(|| {

@@ -14,7 +14,7 @@ use anyhow::Context as _;
 use pbdl_temporal::data::{generate, SmokeData};
 use pbdl_temporal::gan::LossWeights;
 use pbdl_temporal::generator::GeneratorConfig;
-use pbdl_temporal::model::{upscale_npz, ModelKind, TemporalModel};
+use pbdl_temporal::model::{upscale_npz, LoadedModel, ModelKind, TemporalModel};
 use pbdl_temporal::train::{train_all, PhaseSettings, TrainConfig};
 use std::path::{Path, PathBuf};
 
@@ -81,8 +81,9 @@ pub struct EvalArgs {
 /// Arguments of `temporal upscale`.
 #[derive(clap::Args)]
 pub struct UpscaleArgs {
-    /// A model file (`models/<kind>.safetensors` of a run), or a run directory (its temporal
-    /// GAN is used).
+    /// A model file (`models/<kind>.safetensors` of a run, or a recurrent TecoGAN model saved by
+    /// `RecurrentModel::save`, e.g. `--example tecogan_gan -- --save M`), or a run directory
+    /// (its temporal GAN is used).
     #[arg(long)]
     pub model: PathBuf,
     /// Input .npz with `density` [T, 1, Y, X] and optionally `velocity` [T, 2, Y, X].
@@ -223,10 +224,10 @@ pub fn run(cmd: TemporalCommand) -> anyhow::Result<()> {
         }
         TemporalCommand::Upscale(a) => {
             let path = model_path(&a.model);
-            let model = TemporalModel::load(&path).with_context(|| format!("loading the model {}", path.display()))?;
+            let model = LoadedModel::load(&path).with_context(|| format!("loading the model {}", path.display()))?;
             let shape = upscale_npz(&model, &a.input, &a.out)
                 .with_context(|| format!("upscaling {} with {}", a.input.display(), path.display()))?;
-            println!("wrote {} (density {shape:?}, {} model)", a.out.display(), model.info.kind.name());
+            println!("wrote {} (density {shape:?}, {})", a.out.display(), model.describe());
             Ok(())
         }
     }

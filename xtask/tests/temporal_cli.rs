@@ -106,6 +106,36 @@ fn train_resumes_eval_scores_and_upscale_reads_npz() {
         hr.to_str().unwrap(),
     ]);
     assert!(out.status.success(), "{}", stderr(&out));
+    // A recurrent TecoGAN model file (seeded, untrained): the CLI's frames equal the in-process
+    // rollout.
+    let varmap = candle_nn::VarMap::new();
+    let vb = candle_nn::VarBuilder::from_varmap(&varmap, candle_core::DType::F32, &dev);
+    let teco = pbdl_temporal::tecogan::TecoGan::new(Default::default(), vb).unwrap();
+    pbdl_nets::seeded_init(&varmap, 1).unwrap();
+    let info = pbdl_temporal::model::RecurrentModelInfo {
+        tecogan: Default::default(),
+        objective: "untrained".into(),
+        updates: 0,
+    };
+    let teco_path = tmp.path().join("teco.safetensors");
+    pbdl_temporal::model::RecurrentModel::new(info, varmap).unwrap().save(&teco_path).unwrap();
+    let out = xtask(&[
+        "temporal",
+        "upscale",
+        "--model",
+        teco_path.to_str().unwrap(),
+        "--input",
+        input.to_str().unwrap(),
+        "--out",
+        hr.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("recurrent TecoGAN"));
+    let d = pbdl_core::io::read_npz_array(&hr, "density").unwrap();
+    let expected = teco.infer_sequence(&lr).unwrap();
+    let diff: f32 =
+        (&d - &expected).unwrap().abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar().unwrap();
+    assert_eq!(diff, 0.0);
     // Bad inputs name the array.
     let bad = tmp.path().join("bad.npz");
     pbdl_core::io::write_npz(&bad, &[("rho", &lr)]).unwrap();
