@@ -273,7 +273,7 @@ impl RecurrentModel {
     /// naming the path.
     pub fn load(path: &Path) -> Result<Self> {
         match LoadedModel::load(path)? {
-            LoadedModel::Recurrent(m) => Ok(m),
+            LoadedModel::Recurrent(m) => Ok(*m),
             LoadedModel::PerFrame(_) => Err(Error::input(
                 path.display().to_string(),
                 "a per-frame generator, not a recurrent TecoGAN model; load it with TemporalModel::load",
@@ -334,9 +334,9 @@ impl Upscale for RecurrentModel {
 #[derive(Debug)]
 pub enum LoadedModel {
     /// A per-frame generator ([`TemporalModel`]).
-    PerFrame(TemporalModel),
+    PerFrame(Box<TemporalModel>),
     /// TecoGAN's F and G ([`RecurrentModel`]).
-    Recurrent(RecurrentModel),
+    Recurrent(Box<RecurrentModel>),
 }
 
 impl LoadedModel {
@@ -351,9 +351,9 @@ impl LoadedModel {
             let varmap = VarMap::new();
             let model = TecoGan::new(info.tecogan.clone(), VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu))?;
             pbdl_core::io::load_varmap(path, &varmap)?;
-            return Ok(LoadedModel::Recurrent(RecurrentModel { info, model, varmap }));
+            return Ok(LoadedModel::Recurrent(Box::new(RecurrentModel { info, model, varmap })));
         }
-        Ok(LoadedModel::PerFrame(TemporalModel::load(path)?))
+        Ok(LoadedModel::PerFrame(Box::new(TemporalModel::load(path)?)))
     }
 
     /// A short name of what it is, for messages.
@@ -375,8 +375,8 @@ impl Upscale for LoadedModel {
 
     fn upscale(&self, density: &Tensor, velocity: Option<&Tensor>) -> Result<Tensor> {
         match self {
-            LoadedModel::PerFrame(m) => Upscale::upscale(m, density, velocity),
-            LoadedModel::Recurrent(m) => Upscale::upscale(m, density, velocity),
+            LoadedModel::PerFrame(m) => Upscale::upscale(m.as_ref(), density, velocity),
+            LoadedModel::Recurrent(m) => Upscale::upscale(m.as_ref(), density, velocity),
         }
     }
 }
