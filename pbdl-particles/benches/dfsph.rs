@@ -8,6 +8,12 @@
 //! range): IISPH 120 ms (99-135) for 46 steps, 5.67 iterations/step, mean compression max
 //! 1.080e-3; DFSPH 109 ms (100-124) for 47 steps, 3.57 density + 1.81 divergence iterations/step,
 //! mean compression max 1.085e-3. The ranges overlap: no speed difference is shown at this size.
+//!
+//! Measured 2026-11-29 after issue 24 (walls in `pbdl_particles::walls`, DFSPH's summation-density
+//! prediction and particle-deficiency rule; release, shared 2-core machine with two other builds
+//! running): IISPH 87.0 ms (76.4-92.4) for 46 steps, 5.67 iterations/step, mean compression max
+//! 1.080e-3; DFSPH 85.5 ms (81.2-90.2) for 47 steps, 4.13 density + 1.00 divergence
+//! iterations/step, mean compression max 9.148e-4. The ranges overlap again.
 
 #![allow(missing_docs)] // criterion_group! generates undocumented items
 

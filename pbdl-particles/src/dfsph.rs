@@ -1,5 +1,5 @@
 //! 2D divergence-free SPH (DFSPH, Bender & Koschier 2015, 2017) with the wall particles of
-//! [`crate::iisph`], and the dam break ([`DamBreak::build_dfsph`]).
+//! [`crate::walls`] (shared with IISPH and WCSPH), and the dam break ([`DamBreak::build_dfsph`]).
 //!
 //! DFSPH enforces two conditions with one kind of pressure solve: a divergence-free velocity
 //! field (`Dρ/Dt = 0`, solved at the start of the step on the current velocities) and constant
@@ -20,25 +20,33 @@
 //!    written with `p^v_i = κ^v_i ρ_i` (then `κ_i/ρ_i + κ_j/ρ_j = p_i/ρ_i² + p_j/ρ_j²`, the
 //!    symmetric pressure force) and accumulated, relaxed by `ω` and clamped at `p >= 0`;
 //!    it stops when `dt mean_i e_i / ρ0 <= divergence_tolerance` (the relative density change
-//!    the remaining divergence would cause within the step) after at least one iteration;
+//!    the remaining divergence would cause within the step) after at least one iteration, or at
+//!    its cap (not an error, as in SPlisHSPlasH: the constant-density solve follows). Only
+//!    particles with a full neighbourhood are constrained
+//!    ([`DfsphParams::divergence_min_neighbours`]);
 //! 3. non-pressure forces as in IISPH (gravity; Morris/Monaghan laminar viscosity when `nu > 0`),
 //!    `v*_i = v_i + dt a_i`;
-//! 4. **constant-density solve**: pressures `p` with predicted density
-//!    `ρ*_i = ρ0 + r (ρ_i - ρ0) + dt Σ_j m_j (v*_i + dt a^p_i - v*_j - dt a^p_j)·∇W_ij = ρ0` where
-//!    `p_i > 0` and `<= ρ0` where `p_i = 0`; each iteration
+//! 4. **constant-density solve**: pressures `p` with predicted density `ρ*_i = ρ0` where
+//!    `p_i > 0` and `<= ρ0` where `p_i = 0`, `ρ*_i = ρ0 + r (ρ_i - ρ0) + (ρ^Σ_i(x') - ρ_i)`: the
+//!    change of the summation density over the step at the predicted positions
+//!    `x'_i = x_i + dt (v*_i + dt a^p_i)` (walls fixed; see "Predicted density" below), or with
+//!    `summation_prediction = false` the paper's linearisation
+//!    `dt Σ_j m_j (v*_i + dt a^p_i - v*_j - dt a^p_j)·∇W_ij`; each iteration
 //!    `κ_i = (ρ*_i - ρ0)/dt² α_i`, `p_i ← max(0, p_i + ω κ_i ρ_i)` (the paper's update of the
 //!    velocities by `κ`, accumulated into the pressure); `r = min(1, dt/dt_stable)` removes the
 //!    density error already present over the stable step, as in [`crate::iisph`]. It stops when
 //!    the mean density error of the predicted state (`|ρ*_i - ρ0|` where `p_i > 0`,
 //!    `max(ρ*_i - ρ0, 0)` where `p_i = 0`), over `ρ0`, is at most [`DfsphParams::tolerance`]
 //!    after at least two iterations (the paper's `l < 2` rule);
-//! 5. `v_i = v*_i + dt a^p_i(p)`, `x_i += dt v_i`, and the impermeable-wall fallback of IISPH
-//!    (a centre that crossed the container surface goes back onto it and loses its inward
-//!    velocity; [`Dfsph::wall_corrections`], [`Dfsph::max_penetration`]).
+//! 5. `v_i = v*_i + dt a^p_i(p)`, `x_i += dt v_i`, and the impermeable-wall fallback shared
+//!    with IISPH and WCSPH ([`crate::walls::enforce_container`]: a centre that crossed the
+//!    container surface goes back onto it and loses its inward velocity;
+//!    [`Dfsph::wall_corrections`], [`Dfsph::max_penetration`]).
 //!
 //! The pressure acceleration is IISPH's,
 //! `a^p_i = -Σ_f m (p_i/ρ_i² + p_f/ρ_f²) ∇W_if - Σ_b m (p_i/ρ_i² + p_b/ρ0²) ∇W_ib`, with wall
-//! pressures extrapolated from the fluid in every iteration (Adami et al. 2012):
+//! pressures extrapolated from the fluid in every iteration (Adami et al. 2012, the one
+//! implementation in [`crate::walls`] that WCSPH and IISPH use too):
 //! `p_b = max(0, Σ_f (p_f + ρ_f g·(x_b - x_f)) W_bf / Σ_f W_bf)`; the divergence solve's impulse
 //! pressure has no hydrostatic part, so its extrapolation leaves out the `g` term.
 //!
@@ -54,18 +62,32 @@
 //! divergence-free solve and the full warm start: the velocities entering the density solve are
 //! already (nearly) divergence-free, so the density solve starts from a small residual.
 //!
-//! Measured (`tests/dfsph_tests.rs`, dam break dx = a/20 to T = 2, tolerance 1e-3 for both):
-//! DFSPH 3.69 constant-density + 2.15 divergence-free iterations per step (5.84 in all) against
-//! IISPH's 6.76; the largest mean compression of the summation density after a step is 1.118e-3
-//! (IISPH 1.166e-3): the solves bound the error of the linearly predicted density, and the actual
-//! density exceeds 0.1% slightly for both. Known limit: with the full warm start a water column
-//! at rest does not stay at rest (mean speed 8.25e-2 `sqrt(gH)` after 1 s against IISPH's
+//! ## Predicted density
+//!
+//! The bar on DFSPH (issue 24, D1) is on the summation density `ρ_i = Σ_j m_j W_ij` after each
+//! step, measured as the mean compression `mean_i max(ρ_i/ρ0 - 1, 0)` (free-surface particles
+//! lack neighbours and have `ρ_i < ρ0`; that deficit is not counted as error, compression is).
+//! With the paper's linear prediction both solves bounded the linearised density, and the
+//! summation density drifted past it: the largest mean compression after a step of the dam
+//! break (dx = a/20, to T = 2, tolerance 1e-3) was 1.118e-3 (IISPH 1.166e-3). The prediction by
+//! summation at the predicted positions (as PCISPH, Solenthaler & Pajarola 2009, predicts its
+//! density) makes the solve bound the quantity the bar measures, up to pairs that enter the
+//! kernel support during the step (the neighbour list is that of the step's start) and the wall
+//! fallback. Its cost is one kernel evaluation per pair and iteration in place of a dot product.
+//! Measured (`tests/dfsph_tests.rs`, same run): mean compression max 9.50e-4, 4.30
+//! constant-density + 1.50 divergence-free iterations per step (5.80 in all) against IISPH's
+//! 6.76 (IISPH keeps the linear prediction and its 1.166e-3); before, with the linear
+//! prediction: 1.118e-3 and 3.69 + 2.15.
+//!
+//! Known limit: with the full warm start a water column at rest does not stay at rest (mean
+//! speed 7.97e-2 `sqrt(gH)` after 1 s, 8.25e-2 before the summation prediction, against IISPH's
 //! 4.93e-3): the warm start keeps the last step's correction of the density error, as the iisph
-//! module docs found for IISPH. With `warm_start = 0.5` the column keeps 4.93e-3, but then the
-//! divergence-free solve stops after one iteration and DFSPH takes IISPH's 6.76 iterations; 0.6
-//! to 0.9 give 1.4e-2 to 6.6e-2 in the column (5.7 + 1.0 to 4.2 + 1.5 iterations in the dam
-//! break). `omega = 0.6` with the full warm start: 3.46 + 4.60 iterations, mean compression
-//! 8.4e-4 in the dam break, 5.8e-2 in the column. The defaults were not tuned on these runs.
+//! module docs found for IISPH. With `warm_start = 0.5` the column keeps 4.95e-3, but then the
+//! divergence-free solve stops after one iteration. Numbers from before the summation
+//! prediction: warm start 0.6 to 0.9 gave 1.4e-2 to 6.6e-2 in the column (5.7 + 1.0 to
+//! 4.2 + 1.5 iterations in the dam break); `omega = 0.6` with the full warm start 3.46 + 4.60
+//! iterations, mean compression 8.4e-4 in the dam break, 5.8e-2 in the column. The defaults
+//! were not tuned on these runs.
 //!
 //! Precision: as [`crate::iisph`], state and per-particle arithmetic in `T`, parameters, time
 //! and the mean errors in `f64`.
@@ -73,6 +95,7 @@
 use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
+use crate::walls::{self, WallStencil};
 use crate::wcsph::DamBreak;
 use pbdl_core::stepper::{equal_steps_dt, Evolve};
 use pbdl_core::Real;
@@ -81,6 +104,15 @@ use serde::{Deserialize, Serialize};
 
 /// Numerical parameters of [`Dfsph`], with documented defaults (those shared with
 /// [`crate::IisphParams`] have the same defaults).
+///
+/// The defaults are the one parameter set of the dam-break comparison with Martin & Moyce
+/// (issue 24, bar W1), fixed on 2026-11-29 at 03:50 UTC before that comparison was run: IISPH's (see
+/// [`crate::IisphParams`]: Wendland C2, `h = 1.385 dx`, `cfl = 0.4`, `dt_max = 0.005` s,
+/// tolerance 0.1%, `omega = 0.5`, inviscid as water at this scale), the paper's full warm start
+/// (Bender & Koschier 2017), the summation-density prediction (chosen for the density bar D1,
+/// on the density error, not on the front) and SPlisHSPlasH's particle-deficiency rule for the
+/// divergence-free solve (chosen because the dam break failed without it, see
+/// [`DfsphParams::divergence_min_neighbours`]). Walls: Adami et al. (2012), [`crate::walls`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DfsphParams {
@@ -105,6 +137,17 @@ pub struct DfsphParams {
     pub divergence_tolerance: f64,
     /// Iteration cap of the divergence-free solve (default 100).
     pub max_divergence_iterations: usize,
+    /// The divergence-free condition holds only for particles with at least this fraction of a
+    /// full neighbourhood (neighbours, fluid and wall, over those of a lattice particle inside
+    /// the fluid; default 0.875). A particle with fewer (free surface, spray) is left to the
+    /// constant-density solve. This is the particle-deficiency rule of SPlisHSPlasH, Bender's
+    /// reference implementation of DFSPH (2D: at least 7 of the 8 lattice neighbours of its
+    /// kernel, i.e. 7/8): a density-deficient spray particle that approaches the wall or
+    /// another particle has a positive `Dρ/Dt` without being compressed, and its impulse
+    /// pressure threw particles off the corner impact of the dam break at 15 m/s (2.4 times
+    /// `sqrt(2gH)`) until the constant-density solve failed at T = 4.8 (T = 8.8 with the warm
+    /// start at 0.5). 0 imposes the condition everywhere.
+    pub divergence_min_neighbours: f64,
     /// Relaxation ω of both solves (default 0.5; the paper's 1 diverges on the particle lattice,
     /// see the module docs).
     pub omega: f64,
@@ -113,6 +156,11 @@ pub struct DfsphParams {
     pub warm_start: f64,
     /// Kinematic viscosity in m²/s (default 0: no viscosity term).
     pub nu: f64,
+    /// Predict the density of the constant-density solve by summation at the predicted
+    /// positions `x_i + dt (v*_i + dt a^p_i)` (default true) instead of linearly,
+    /// `ρ_i + dt Σ_j m_j (v_i - v_j)·∇W_ij` (false: Bender & Koschier's prediction). See
+    /// "Predicted density" in the module docs.
+    pub summation_prediction: bool,
 }
 
 impl Default for DfsphParams {
@@ -127,9 +175,11 @@ impl Default for DfsphParams {
             divergence_free: true,
             divergence_tolerance: 1e-3,
             max_divergence_iterations: 100,
+            divergence_min_neighbours: 0.875,
             omega: 0.5,
             warm_start: 1.0,
             nu: 0.0,
+            summation_prediction: true,
         }
     }
 }
@@ -174,6 +224,12 @@ impl DfsphParams {
             return Err(Error::invalid(
                 "max_divergence_iterations",
                 "0; the divergence solve needs at least 1 iteration (set divergence_free = false to skip it)",
+            ));
+        }
+        if !(self.divergence_min_neighbours >= 0.0 && self.divergence_min_neighbours <= 1.0) {
+            return Err(Error::invalid(
+                "divergence_min_neighbours",
+                format!("{}; use a fraction in [0, 1] (0.875)", self.divergence_min_neighbours),
             ));
         }
         if !(pos(self.omega) && self.omega <= 1.0) {
@@ -239,11 +295,14 @@ pub struct Dfsph<T: Real = f64> {
     cells: CellList<T, 2>,
     nl: NeighborList,
     grads: Vec<[T; 2]>,
+    walls: WallStencil<T>,
     time: f64,
     steps: u64,
     stats: DfsphStats,
     total_iterations: u64,
     total_divergence_iterations: u64,
+    divergence_unconverged: u64,
+    full_neighbours: usize,
     wall_corrections: u64,
     max_penetration: f64,
     /// Factor on the stored pressures for the next warm start (1 for a given initial pressure).
@@ -297,8 +356,16 @@ impl<T: Real> Dfsph<T> {
             .flat_map(|j| (-reach..=reach).map(move |i| (i, j)))
             .map(|(i, j)| k64.w(((i * i + j * j) as f64).sqrt() * dx))
             .sum();
+        // Neighbours of a lattice particle inside the fluid (strictly within the support, as
+        // the neighbour search).
+        let s2 = (k64.support() / dx).powi(2);
+        let full_neighbours = (-reach..=reach)
+            .flat_map(|j| (-reach..=reach).map(move |i| (i, j)))
+            .filter(|&(i, j)| (i, j) != (0, 0) && ((i * i + j * j) as f64) < s2)
+            .count();
         let cells = CellList::new(domain, kernel.support())?;
         Ok(Dfsph {
+            full_neighbours,
             params,
             kernel,
             rho0,
@@ -315,11 +382,13 @@ impl<T: Real> Dfsph<T> {
             cells,
             nl: NeighborList::default(),
             grads: Vec::new(),
+            walls: WallStencil::default(),
             time: 0.0,
             steps: 0,
             stats: DfsphStats::default(),
             total_iterations: 0,
             total_divergence_iterations: 0,
+            divergence_unconverged: 0,
             wall_corrections: 0,
             max_penetration: 0.0,
             warm: params.warm_start,
@@ -402,6 +471,12 @@ impl<T: Real> Dfsph<T> {
         self.total_divergence_iterations
     }
 
+    /// Steps whose divergence-free solve stopped at its iteration cap above its tolerance (the
+    /// step went on; see [`Dfsph::step`]).
+    pub fn divergence_unconverged(&self) -> u64 {
+        self.divergence_unconverged
+    }
+
     /// The terms this stepper evaluates: `summation_density`, `dfsph_alpha`,
     /// `divergence_solve_dfsph` (when `divergence_free`), `density_solve_dfsph`,
     /// `pressure_acceleration`, then `gravity` (non-zero gravity), `laminar_viscosity`
@@ -440,16 +515,23 @@ impl<T: Real> Dfsph<T> {
 
     /// One DFSPH step of size `dt` (see the module docs).
     ///
+    /// A divergence-free solve that reaches its cap above its tolerance does not stop the step
+    /// (counted by [`Dfsph::divergence_unconverged`]; SPlisHSPlasH does the same).
+    ///
     /// Errors: [`Error::UnstableTimeStep`] when `dt` exceeds [`Dfsph::stable_dt`],
-    /// [`Error::SolverNotConverged`] when either solve misses its tolerance within its cap
-    /// (both leave the state unchanged), [`Error::NonFinite`].
+    /// [`Error::SolverNotConverged`] when the constant-density solve misses its tolerance within
+    /// its cap (both leave the state unchanged), [`Error::NonFinite`].
     pub fn step(&mut self, dt: f64) -> Result<()> {
         let limit = self.stable_dt();
         if dt.is_nan() || dt <= 0.0 || dt > limit * (1.0 + 1e-12) {
             return Err(Error::UnstableTimeStep { dt, limit, criterion: "CFL (particle velocity)" });
         }
         let nf = self.n_fluid;
-        self.cells.neighbors(&self.x, &mut self.nl)?;
+        // Fluid rows only; the wall particles' sums come from crate::walls::WallStencil.
+        self.cells.build(&self.x)?;
+        self.cells.query_first(nf, &mut self.nl);
+        let dom = *self.cells.domain();
+        self.walls.build(&self.x, nf, &self.nl, &self.kernel, &dom);
         let c = T::c;
         let zero = T::zero();
         let (m, rho0, k) = (c(self.mass), c(self.rho0), self.kernel);
@@ -479,7 +561,7 @@ impl<T: Real> Dfsph<T> {
                 *r = sum;
             });
         }
-        let (x, nl, rho, grads) = (&self.x, &self.nl, &self.rho, &self.grads);
+        let (x, nl, rho, grads, stencil) = (&self.x, &self.nl, &self.rho, &self.grads, &self.walls);
         let grad_row = |i: usize| &grads[nl.offsets[i]..nl.offsets[i + 1]];
         let compression = rho.iter().map(|&r| (r.wide() / self.rho0 - 1.0).max(0.0)).sum::<f64>() / nf.max(1) as f64;
         // DFSPH factor, stored as its inverse without ρ_i: den_i = ρ_i / α_i.
@@ -503,32 +585,12 @@ impl<T: Real> Dfsph<T> {
             .collect();
         let (dt_t, dt2) = (c(dt), c(dt * dt));
         let g = self.gravity.map(c);
-        let n_all = x.len();
-        // Wall pressures extrapolated from the fluid (Adami et al. 2012), as in IISPH; the
-        // hydrostatic term only for the constant-density pressure.
+        // Wall pressures extrapolated from the fluid (Adami et al. 2012, crate::walls), as in
+        // IISPH; the hydrostatic term only for the constant-density pressure.
         let wall_pressure = |p: &[T], hydro: bool| -> Vec<T> {
-            (nf..n_all)
-                .into_par_iter()
-                .map(|b| {
-                    let (mut sw, mut sp) = (zero, zero);
-                    for &f in nl.neighbors(b) {
-                        let f = f as usize;
-                        if f >= nf {
-                            continue;
-                        }
-                        let d = [x[b][0] - x[f][0], x[b][1] - x[f][1]];
-                        let w = k.w((d[0] * d[0] + d[1] * d[1]).sqrt());
-                        sw += w;
-                        let gd = if hydro { rho[f] * (g[0] * d[0] + g[1] * d[1]) } else { zero };
-                        sp += (p[f] + gd) * w;
-                    }
-                    if sw > zero {
-                        (sp / sw).fmax(zero)
-                    } else {
-                        zero
-                    }
-                })
-                .collect()
+            let mut pw = Vec::new();
+            stencil.pressure(p, rho, if hydro { g } else { [zero; 2] }, &mut pw);
+            pw
         };
         let pressure_acc = |p: &[T], hydro: bool| -> Vec<[T; 2]> {
             let pw = wall_pressure(p, hydro);
@@ -561,26 +623,66 @@ impl<T: Real> Dfsph<T> {
         // One solve: pressures p >= 0 such that base + dt a^p(p) changes density by -target_i
         // over dt (target_i = the density excess to remove), with complementarity at p = 0.
         let omega = c(self.params.omega);
-        let solve = |base: &[[T; 2]], target: &[T], mut p: Vec<T>, hydro: bool, tol: f64, cap: usize, min_it: usize| {
+        // The density at the end of the step by summation at the predicted positions
+        // x + dt (u + dt a^p) (walls fixed), on the neighbour list of the step's start.
+        let predicted_density = |u: &[[T; 2]], ap: &[[T; 2]]| -> Vec<T> {
+            let xp: Vec<[T; 2]> = (0..nf)
+                .into_par_iter()
+                .map(|i| std::array::from_fn(|d| x[i][d] + dt_t * (u[i][d] + dt_t * ap[i][d])))
+                .collect();
+            (0..nf)
+                .into_par_iter()
+                .map(|i| {
+                    let mut sum = m * k.w(zero);
+                    for &j in nl.neighbors(i) {
+                        let j = j as usize;
+                        let xj = if j < nf { xp[j] } else { x[j] };
+                        let d = [xp[i][0] - xj[0], xp[i][1] - xj[1]];
+                        sum += m * k.w((d[0] * d[0] + d[1] * d[1]).sqrt());
+                    }
+                    sum
+                })
+                .collect()
+        };
+        #[allow(clippy::too_many_arguments)]
+        let solve = |base: &[[T; 2]],
+                     target: &[T],
+                     mut p: Vec<T>,
+                     hydro: bool,
+                     summation: bool,
+                     active: Option<&[bool]>,
+                     tol: f64,
+                     cap: usize,
+                     min_it: usize| {
             let mut out =
                 Solved { p: Vec::new(), ap: Vec::new(), iterations: 0, error: f64::INFINITY, converged: false };
             for it in 1..=cap {
                 let ap = pressure_acc(&p, hydro);
+                let rho_pred = if summation { predicted_density(base, &ap) } else { Vec::new() };
                 let (new_p, err): (Vec<T>, Vec<T>) = (0..nf)
                     .into_par_iter()
                     .map(|i| {
-                        // ρ*_i - ρ0 with the pressure p: the excess left after the step.
+                        // ρ*_i - ρ0 with the pressure p: the excess left after the step, the
+                        // change over the step by summation or linearised.
                         let dev = target[i]
-                            + density_change(base, i)
-                            + dt2 * {
-                                let mut s = zero;
-                                for (gw, &j) in grad_row(i).iter().zip(nl.neighbors(i)) {
-                                    let j = j as usize;
-                                    let aj = if j < nf { ap[j] } else { [zero; 2] };
-                                    s += m * ((ap[i][0] - aj[0]) * gw[0] + (ap[i][1] - aj[1]) * gw[1]);
-                                }
-                                s
+                            + if summation {
+                                rho_pred[i] - rho[i]
+                            } else {
+                                density_change(base, i)
+                                    + dt2 * {
+                                        let mut s = zero;
+                                        for (gw, &j) in grad_row(i).iter().zip(nl.neighbors(i)) {
+                                            let j = j as usize;
+                                            let aj = if j < nf { ap[j] } else { [zero; 2] };
+                                            s += m * ((ap[i][0] - aj[0]) * gw[0] + (ap[i][1] - aj[1]) * gw[1]);
+                                        }
+                                        s
+                                    }
                             };
+                        if active.is_some_and(|a| !a[i]) {
+                            // Not constrained (particle-deficient, see DfsphParams).
+                            return (zero, zero);
+                        }
                         let e = if p[i] > zero { dev.abs() } else { dev.fmax(zero) };
                         // κ_i ρ_i = (ρ*_i - ρ0)/dt² α_i ρ_i = dev ρ_i² / (dt² den_i).
                         let pn = if den[i] > zero {
@@ -597,8 +699,10 @@ impl<T: Real> Dfsph<T> {
                 if !avg.is_finite() {
                     return out;
                 }
-                if it >= min_it && avg <= tol {
-                    out.converged = true;
+                if (it >= min_it && avg <= tol) || it == cap {
+                    // At the cap, the pressures whose error was measured (the caller decides
+                    // whether an unconverged solve is an error).
+                    out.converged = it >= min_it && avg <= tol;
                     out.ap = ap;
                     out.p = p;
                     return out;
@@ -624,13 +728,22 @@ impl<T: Real> Dfsph<T> {
         };
         // Divergence-free solve on the current velocities.
         let v = &self.v;
+        let mut div_unconverged = 0u64;
         let (v_div, p_div, div_stats) = if self.params.divergence_free && nf > 0 {
             let target = vec![zero; nf];
             let p0: Vec<T> = self.p_div.iter().map(|&q| warm * q).collect();
             let tol = self.params.divergence_tolerance;
-            let s = solve(v, &target, p0, false, tol, self.params.max_divergence_iterations, 1);
-            if !s.converged {
+            let need = self.params.divergence_min_neighbours * self.full_neighbours as f64;
+            let active: Vec<bool> = (0..nf).map(|i| nl.neighbors(i).len() as f64 >= need).collect();
+            let s = solve(v, &target, p0, false, false, Some(&active), tol, self.params.max_divergence_iterations, 1);
+            // An unconverged divergence-free solve is not an error (as in Bender's SPlisHSPlasH,
+            // which stops it at its iteration cap): what divergence is left, the constant-density
+            // solve removes in the same step. Only a non-finite residual is.
+            if !s.error.is_finite() {
                 return Err(not_converged("DFSPH divergence-free solve", &s, tol));
+            }
+            if !s.converged {
+                div_unconverged = 1;
             }
             let vd: Vec<[T; 2]> = (0..nf).map(|i| [v[i][0] + dt_t * s.ap[i][0], v[i][1] + dt_t * s.ap[i][1]]).collect();
             (vd, s.p, (s.iterations, s.error))
@@ -639,6 +752,11 @@ impl<T: Real> Dfsph<T> {
         };
         // Non-pressure forces -> advected velocity (as IISPH).
         let (nu, eps, viscous) = (c(self.params.nu), c(0.01) * h * h, self.params.nu > 0.0);
+        // No-slip wall velocities for the viscous term (Adami et al. 2012, crate::walls).
+        let mut wall_v = Vec::new();
+        if viscous {
+            stencil.no_slip_velocity(&v_div, &mut wall_v);
+        }
         let v_adv: Vec<[T; 2]> = (0..nf)
             .into_par_iter()
             .map(|i| {
@@ -646,7 +764,7 @@ impl<T: Real> Dfsph<T> {
                 if viscous {
                     for (gw, &j) in grad_row(i).iter().zip(nl.neighbors(i)) {
                         let j = j as usize;
-                        let vj = if j < nf { v_div[j] } else { [zero; 2] };
+                        let vj = if j < nf { v_div[j] } else { wall_v[j - nf] };
                         let rj = if j < nf { rho[j] } else { rho0 };
                         let d = [x[i][0] - x[j][0], x[i][1] - x[j][1]];
                         let vx = (v_div[i][0] - vj[0]) * d[0] + (v_div[i][1] - vj[1]) * d[1];
@@ -662,30 +780,23 @@ impl<T: Real> Dfsph<T> {
         let target: Vec<T> = rho.iter().map(|&r| c(relax) * (r - rho0)).collect();
         let p0: Vec<T> = self.p.iter().map(|&q| warm * q).collect();
         let tol = self.params.tolerance;
-        let s = solve(&v_adv, &target, p0, true, tol, self.params.max_iterations, 2);
+        let summation = self.params.summation_prediction;
+        let s = solve(&v_adv, &target, p0, true, summation, None, tol, self.params.max_iterations, 2);
         if !s.converged {
             return Err(not_converged("DFSPH constant-density solve", &s, tol));
         }
-        let walls = x.len() > nf;
-        let [lo, hi] = self.container.map(|b| b.map(c));
-        let (mut corrections, mut depth) = (0u64, self.max_penetration);
         for i in 0..nf {
             for d in 0..2 {
                 self.v[i][d] = v_adv[i][d] + dt_t * s.ap[i][d];
                 self.x[i][d] += dt_t * self.v[i][d];
-                if walls {
-                    let (below, above) = (lo[d] - self.x[i][d], self.x[i][d] - hi[d]);
-                    if below > zero || above > zero {
-                        depth = depth.max(below.fmax(above).wide());
-                        corrections += 1;
-                        self.x[i][d] = self.x[i][d].fmax(lo[d]).fmin(hi[d]);
-                        self.v[i][d] = if below > zero { self.v[i][d].fmax(zero) } else { self.v[i][d].fmin(zero) };
-                    }
-                }
             }
         }
-        self.wall_corrections += corrections;
-        self.max_penetration = depth;
+        // The impermeable-wall fallback shared with IISPH (crate::walls::enforce_container).
+        if self.x.len() > nf {
+            let fix = walls::enforce_container(&mut self.x, &mut self.v, nf, self.container);
+            self.wall_corrections += fix.corrections;
+            self.max_penetration = self.max_penetration.max(fix.depth);
+        }
         if let Some(i) = (0..nf).find(|&i| !(self.x[i][0].is_finite() && self.x[i][1].is_finite())) {
             return Err(Error::NonFinite { what: "position", index: i, step: self.steps });
         }
@@ -701,6 +812,7 @@ impl<T: Real> Dfsph<T> {
         self.warm = self.params.warm_start * relax;
         self.total_iterations += s.iterations as u64;
         self.total_divergence_iterations += div_stats.0 as u64;
+        self.divergence_unconverged += div_unconverged;
         self.time += dt;
         self.steps += 1;
         Ok(())
@@ -719,7 +831,8 @@ impl<T: Real> Dfsph<T> {
 
     /// Summation densities of the fluid at the current positions (fluid and walls).
     pub fn summation_density(&mut self) -> Result<Vec<T>> {
-        self.cells.neighbors(&self.x, &mut self.nl)?;
+        self.cells.build(&self.x)?;
+        self.cells.query_first(self.n_fluid, &mut self.nl);
         let (x, nl, k, m) = (&self.x, &self.nl, self.kernel, T::c(self.mass));
         Ok((0..self.n_fluid)
             .into_par_iter()
@@ -746,16 +859,12 @@ impl<T: Real> Dfsph<T> {
 
     /// The largest x of any fluid particle (the surge front).
     pub fn front(&self) -> f64 {
-        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(p[0].wide()))
+        walls::front(&self.x, self.n_fluid)
     }
 
     /// Fluid particles outside the container (or non-finite), compared in `T`.
     pub fn leaked(&self) -> usize {
-        let [lo, hi] = self.container.map(|b| b.map(T::c));
-        self.x[..self.n_fluid]
-            .iter()
-            .filter(|p| !(p[0] >= lo[0] && p[0] <= hi[0] && p[1] >= lo[1] && p[1] <= hi[1]))
-            .count()
+        walls::leaked(&self.x, self.n_fluid, self.container)
     }
 
     /// Whether every fluid position and velocity is finite.

@@ -5,13 +5,15 @@
 //!
 //! 1. summation density `ρ_i = Σ_j m_j W_ij` over fluid and wall particles (self included);
 //! 2. non-pressure forces: gravity and, when `nu > 0`, Morris/Monaghan laminar viscosity
-//!    `a_i += 2 (d + 2) ν Σ_j (m_j / ρ_j) (v_ij·x_ij) / (r² + 0.01 h²) ∇W_ij` (walls at rest);
+//!    `a_i += 2 (d + 2) ν Σ_j (m_j / ρ_j) (v_ij·x_ij) / (r² + 0.01 h²) ∇W_ij` (wall particles
+//!    carry Adami et al.'s no-slip velocity `-ṽ_w`, see [`crate::walls`]);
 //!    `v*_i = v_i + dt a_i`;
 //! 3. predicted density `ρ*_i = ρ_i + dt Σ_j m_j v*_ij·∇W_ij`;
 //! 4. the pressure Poisson equation `dt² Σ_j m_j (a^p_i - a^p_j)·∇W_ij = ρ0 - ρ*_i` with
 //!    `a^p_i = -Σ_{j fluid} m_j (p_i/ρ_i² + p_j/ρ_j²) ∇W_ij - Σ_{b wall} m_b (p_i/ρ_i² + p_b/ρ0²) ∇W_ib`
 //!    and wall pressures extrapolated from the fluid in every iteration (Adami et al. 2012, as
-//!    Band et al. 2018 do for IISPH), `p_b = Σ_f (p_f + ρ_f g·(x_b - x_f)) W_bf / Σ_f W_bf`
+//!    Band et al. 2018 do for IISPH; the one implementation in [`crate::walls`] that WCSPH and
+//!    DFSPH use too), `p_b = Σ_f (p_f + ρ_f g·(x_b - x_f)) W_bf / Σ_f W_bf`
 //!    (`a^p = 0` on walls), solved by relaxed Jacobi
 //!    `p_i ← max(0, p_i + ω (s_i - (Ap)_i) / a_ii)`, `ω = 0.5`, warm-started from half the
 //!    previous pressure; `a_ii` is the diagonal with the wall pressure approximated by
@@ -19,13 +21,15 @@
 //!    `p_i/ρ_i²` term) let a water column at rest churn at 0.5 to 3 m/s in our tests;
 //!    extrapolation keeps it near rest;
 //! 5. `v_i = v*_i + dt a^p_i`, `x_i += dt v_i`;
-//! 6. impermeable walls (`v·n >= 0` on the container surface), as a fallback: a fluid centre
+//! 6. impermeable walls (`v·n >= 0` on the container surface, [`crate::walls::enforce_container`],
+//!    shared with WCSPH and DFSPH), as a fallback: a fluid centre
 //!    that crossed the surface goes back onto it and loses its inward velocity. Wall particles
 //!    alone cannot stop a density-deficient particle (spray, a broken-up film): its extrapolated
 //!    wall pressure is 0 and its summation density reaches `ρ0` only about `0.25 dx` behind
 //!    the surface. [`Iisph::wall_corrections`] and [`Iisph::max_penetration`] report how often
 //!    and how deep (the dam break to T = 4: 40 corrections in 2.7e5 particle steps, deepest
-//!    0.07 dx; to T = 10: 416, deepest 0.34 dx, still short of the first wall layer at 0.5 dx).
+//!    0.07 dx; to T = 10: 416, deepest 0.34 dx, still short of the first wall layer at 0.5 dx;
+//!    340 and 0.29 dx since the walls moved to [`crate::walls`], the same sums in another order).
 //!
 //! The source term removes the density error already present over the stable step:
 //! `s_i = min(1, dt/dt_stable) (ρ0 - ρ_i) - dt Σ_j m_j v*_ij·∇W_ij`, which is Ihmsen's `ρ0 - ρ*_i`
@@ -87,13 +91,18 @@
 //!
 //! The inviscid surge front leads Martin & Moyce (1952) by +16.9 / +12.2 / +13.4 / +10.8% at
 //! T = 1.21 / 1.60 / 2.00 / 2.28 (+17.0 / +12.6 / +13.9 / +11.2% at `h = 1.3 dx`), the WCSPH
-//! solver by +11.5 / +5.8 / +5.6 / +2.2%. The pressure solve does not add energy: from T = 0.5
+//! solver with its former `α = 0.15` by +11.5 / +5.8 / +5.6 / +2.2%. The pressure solve does not
+//! add energy: from T = 0.5
 //! on the kinetic energy stays at least 1.1% below the potential energy released (asserted in
 //! `tests/iisph_tests.rs`). The difference is viscosity: WCSPH's artificial viscosity
 //! (`α = 0.15`, `ν ≈ α h c0 / 8 = 0.054 m²/s` for approaching pairs) against none here; with
 //! `nu = 0.005` the IISPH front leads by +12.8 / +7.4 / +8.5 / +5.7%, with `nu = 0.054` by
 //! +6.0 / -0.5 / -1.4 / -4.9%. Water's 1e-6 m²/s changes nothing at this scale, so the
-//! inviscid lead is the model's, not a defect of the solve.
+//! inviscid lead is the model's, not a defect of the solve. Issue 24 (bar W1, one parameter set
+//! per solver fixed before the comparison): WCSPH without artificial viscosity (water's `ν`,
+//! no-slip walls) leads by +16.8 / +12.5 / +14.7 / +12.2% at the same times, as IISPH does;
+//! at dx = a/40 IISPH leads by +20.3 / +14.2 / +14.9 / +12.2% (all in
+//! `tests/dambreak_tests.rs`): the 0..+10% band is not met, and the lead grows with resolution.
 //!
 //! The particle mass is `m = ρ0 / Σ_k W(|x_k|)` over the particle lattice, so that a particle
 //! with full support at rest has exactly `ρ0` (the volume definition of Akinci et al. 2012 for
@@ -115,6 +124,7 @@
 use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
+use crate::walls::{self, WallStencil};
 use crate::wcsph::DamBreak;
 use pbdl_core::stepper::{equal_steps_dt, Evolve};
 use pbdl_core::Real;
@@ -122,6 +132,16 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Numerical parameters of [`Iisph`], with documented defaults.
+///
+/// The defaults are the one parameter set of the dam-break comparison with Martin & Moyce
+/// (issue 24, bar W1), fixed on 2026-11-29 at 03:50 UTC before that comparison was run, unchanged from
+/// before (none was chosen on the comparison): Wendland C2 with `h = 1.385 dx` (the lattice
+/// stability analysis in the module docs), `cfl = 0.4` (Ihmsen et al. 2014's λ = 0.4),
+/// `dt_max = 0.005` s, `tolerance = 1e-3` (Ihmsen et al.'s 0.1% average density error),
+/// `omega = 0.5` (Ihmsen et al.'s relaxation), and `nu = 0`: water's kinematic viscosity,
+/// 1.0e-6 m²/s, changes a 1 m dam break by less than the solver tolerance (Reynolds number
+/// ~4e6), so the model is inviscid. Walls: Adami et al. (2012) extrapolated wall pressure with
+/// the hydrostatic term ([`crate::walls`]), as WCSPH and DFSPH.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct IisphParams {
@@ -232,6 +252,7 @@ pub struct Iisph<T: Real = f64> {
     cells: CellList<T, 2>,
     nl: NeighborList,
     grads: Vec<[T; 2]>,
+    walls: WallStencil<T>,
     time: f64,
     steps: u64,
     stats: SolveStats,
@@ -308,6 +329,7 @@ impl<T: Real> Iisph<T> {
             cells,
             nl: NeighborList::default(),
             grads: Vec::new(),
+            walls: WallStencil::default(),
             time: 0.0,
             steps: 0,
             stats: SolveStats::default(),
@@ -431,7 +453,12 @@ impl<T: Real> Iisph<T> {
             return Err(Error::UnstableTimeStep { dt, limit, criterion: "CFL (particle velocity)" });
         }
         let nf = self.n_fluid;
-        self.cells.neighbors(&self.x, &mut self.nl)?;
+        // Fluid rows only: the wall particles' sums come from the transposed fluid rows
+        // (crate::walls::WallStencil).
+        self.cells.build(&self.x)?;
+        self.cells.query_first(nf, &mut self.nl);
+        let dom = *self.cells.domain();
+        self.walls.build(&self.x, nf, &self.nl, &self.kernel, &dom);
         let c = T::c;
         let zero = T::zero();
         let (m, rho0, k) = (c(self.mass), c(self.rho0), self.kernel);
@@ -463,11 +490,16 @@ impl<T: Real> Iisph<T> {
                 *r = sum;
             });
         }
-        let (rho, grads, v) = (&self.rho, &self.grads, &self.v);
+        let (rho, grads, v, stencil) = (&self.rho, &self.grads, &self.v, &self.walls);
         let grad_row = |i: usize| &grads[nl.offsets[i]..nl.offsets[i + 1]];
         // Non-pressure forces -> advected velocity.
         let (g, nu, eps) = (self.gravity.map(c), c(self.params.nu), c(0.01) * h * h);
         let (dt_t, viscous) = (c(dt), self.params.nu > 0.0);
+        // No-slip wall velocities for the viscous term (Adami et al. 2012, crate::walls).
+        let mut wall_v = Vec::new();
+        if viscous {
+            stencil.no_slip_velocity(v, &mut wall_v);
+        }
         let v_adv: Vec<[T; 2]> = (0..nf)
             .into_par_iter()
             .map(|i| {
@@ -475,7 +507,7 @@ impl<T: Real> Iisph<T> {
                 if viscous {
                     for (gw, &j) in grad_row(i).iter().zip(nl.neighbors(i)) {
                         let j = j as usize;
-                        let vj = if j < nf { v[j] } else { [zero; 2] };
+                        let vj = if j < nf { v[j] } else { wall_v[j - nf] };
                         let rj = if j < nf { rho[j] } else { rho0 };
                         let d = [x[i][0] - x[j][0], x[i][1] - x[j][1]];
                         let vx = (v[i][0] - vj[0]) * d[0] + (v[i][1] - vj[1]) * d[1];
@@ -525,29 +557,10 @@ impl<T: Real> Iisph<T> {
         let mut ap = vec![[zero; 2]; nf];
         // Wall pressures extrapolated from the fluid (Adami et al. 2012; Band et al. 2018 for
         // IISPH): p_b = Σ_f (p_f + ρ_f g·(x_b - x_f)) W_bf / Σ_f W_bf, clamped at 0.
-        let n_all = x.len();
         let wall_pressure = |p: &[T]| -> Vec<T> {
-            (nf..n_all)
-                .into_par_iter()
-                .map(|b| {
-                    let (mut sw, mut sp) = (zero, zero);
-                    for &f in nl.neighbors(b) {
-                        let f = f as usize;
-                        if f >= nf {
-                            continue;
-                        }
-                        let d = [x[b][0] - x[f][0], x[b][1] - x[f][1]];
-                        let w = k.w((d[0] * d[0] + d[1] * d[1]).sqrt());
-                        sw += w;
-                        sp += (p[f] + rho[f] * (g[0] * d[0] + g[1] * d[1])) * w;
-                    }
-                    if sw > zero {
-                        (sp / sw).fmax(zero)
-                    } else {
-                        zero
-                    }
-                })
-                .collect()
+            let mut pw = Vec::new();
+            stencil.pressure(p, rho, g, &mut pw);
+            pw
         };
         let pressure_acc = |p: &[T], ap: &mut [[T; 2]]| {
             let pw = wall_pressure(p);
@@ -606,28 +619,19 @@ impl<T: Real> Iisph<T> {
             });
         }
         pressure_acc(&p, &mut ap);
-        let walls = x.len() > nf;
-        let [lo, hi] = self.container.map(|b| b.map(c));
-        let (mut corrections, mut depth) = (0u64, self.max_penetration);
         for i in 0..nf {
             for d in 0..2 {
                 self.v[i][d] = v_adv[i][d] + dt_t * ap[i][d];
                 self.x[i][d] += dt_t * self.v[i][d];
-                // Impermeable walls, v·n >= 0 on the surface (see the module docs): a centre
-                // that crossed the surface goes back onto it, its inward velocity is removed.
-                if walls {
-                    let (below, above) = (lo[d] - self.x[i][d], self.x[i][d] - hi[d]);
-                    if below > zero || above > zero {
-                        depth = depth.max(below.fmax(above).wide());
-                        corrections += 1;
-                        self.x[i][d] = self.x[i][d].fmax(lo[d]).fmin(hi[d]);
-                        self.v[i][d] = if below > zero { self.v[i][d].fmax(zero) } else { self.v[i][d].fmin(zero) };
-                    }
-                }
             }
         }
-        self.wall_corrections += corrections;
-        self.max_penetration = depth;
+        // Impermeable walls, v·n >= 0 on the surface (see the module docs and
+        // crate::walls::enforce_container).
+        if self.x.len() > nf {
+            let fix = walls::enforce_container(&mut self.x, &mut self.v, nf, self.container);
+            self.wall_corrections += fix.corrections;
+            self.max_penetration = self.max_penetration.max(fix.depth);
+        }
         if let Some(i) = (0..nf).find(|&i| !(self.x[i][0].is_finite() && self.x[i][1].is_finite())) {
             return Err(Error::NonFinite { what: "position", index: i, step: self.steps });
         }
@@ -656,7 +660,8 @@ impl<T: Real> Iisph<T> {
 
     /// Summation densities of the fluid at the current positions (fluid and walls).
     pub fn summation_density(&mut self) -> Result<Vec<T>> {
-        self.cells.neighbors(&self.x, &mut self.nl)?;
+        self.cells.build(&self.x)?;
+        self.cells.query_first(self.n_fluid, &mut self.nl);
         let (x, nl, k, m) = (&self.x, &self.nl, self.kernel, T::c(self.mass));
         Ok((0..self.n_fluid)
             .into_par_iter()
@@ -684,16 +689,12 @@ impl<T: Real> Iisph<T> {
 
     /// The largest x of any fluid particle (the surge front).
     pub fn front(&self) -> f64 {
-        self.x[..self.n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(p[0].wide()))
+        walls::front(&self.x, self.n_fluid)
     }
 
     /// Fluid particles outside the container (or non-finite), compared in `T`.
     pub fn leaked(&self) -> usize {
-        let [lo, hi] = self.container.map(|b| b.map(T::c));
-        self.x[..self.n_fluid]
-            .iter()
-            .filter(|p| !(p[0] >= lo[0] && p[0] <= hi[0] && p[1] >= lo[1] && p[1] <= hi[1]))
-            .count()
+        walls::leaked(&self.x, self.n_fluid, self.container)
     }
 
     /// Whether every fluid position and velocity is finite.

@@ -12,6 +12,7 @@
 //! | [`wcsph`] | [`Wcsph`]: 2D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, extrapolated wall particles), [`DamBreak`] (Martin & Moyce; [`DamBreak::build_as`] picks `f32` or `f64`) |
 //! | [`iisph`] | [`Iisph`]: 2D implicit incompressible SPH (relaxed-Jacobi pressure solve to a stated density tolerance, wall particles), [`DamBreak::build_iisph`] / [`DamBreak::build_iisph_as`] |
 //! | [`dfsph`] | [`dfsph::Dfsph`]: 2D divergence-free SPH (Bender & Koschier: divergence-free solve + constant-density solve with the α factors, warm start; IISPH's wall particles), [`DamBreak::build_dfsph`] / [`DamBreak::build_dfsph_as`] |
+//! | [`walls`] | wall particles shared by WCSPH, IISPH and DFSPH: Adami, Hu & Adams (2012) pressure extrapolation with the hydrostatic term and no-slip wall velocity ([`walls::WallStencil`]), the impermeable-container fallback and leak/front diagnostics |
 //! | [`render`] | particles splatted into pixel fields for PNG/GIF ([`render::scatter`]) |
 //! | [`scene`] | [`scene::Scene`]: TOML scenes (`precision = "f32"` or `"f64"`) (shock tube, dam break WCSPH/IISPH, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
 //! | [`Evolve`] | the one solver trait (re-exported from [`pbdl_core::stepper`]): [`Sph1d`], [`Wcsph`], [`Iisph`] and [`scene::Stepper`] step in place with an adaptive stable step; [`Evolve::run_until`] (IISPH in equal steps, the others with a shortened last step) |
@@ -45,6 +46,7 @@ pub mod riemann;
 pub mod scene;
 pub mod sph1d;
 pub mod validation;
+pub mod walls;
 pub mod wcsph;
 
 pub use error::{Error, Result};
