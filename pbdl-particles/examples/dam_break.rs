@@ -1,8 +1,9 @@
-//! Runs the dam break and prints the surge front Z = z/a at T = 1.0 .. 2.5 (env: DX, ALPHA, DELTA, HDX, KERNEL).
+//! Runs the dam break and prints the surge front Z = z/a at T = 1.0 .. 2.5 (env: DX, ALPHA, NU, DELTA, HDX, KERNEL;
+//! unset ones take `WcsphParams::default()`, the parameter set documented there).
 use pbdl_particles::{DamBreak, Evolve, WcsphParams};
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let env = |k: &str, d: f64| std::env::var(k).ok().and_then(|v| v.parse().ok()).unwrap_or(d);
-    // Defaults: the scene and parameters of the dam-break test.
+    // Defaults: the scene and parameters of the dam-break tests.
     let scene = DamBreak { dx: env("DX", 0.05), ..Default::default() };
     let kernel = match std::env::var("KERNEL").as_deref() {
         Ok("cubic") => pbdl_particles::KernelKind::CubicSpline,
@@ -10,12 +11,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Ok("c4") => pbdl_particles::KernelKind::WendlandC4,
         _ => pbdl_particles::KernelKind::WendlandC2,
     };
+    let d = WcsphParams::default();
     let params = WcsphParams {
-        alpha: env("ALPHA", 0.15),
-        delta: env("DELTA", 0.1),
-        h_over_dx: env("HDX", 1.3),
+        alpha: env("ALPHA", d.alpha),
+        nu: env("NU", d.nu),
+        delta: env("DELTA", d.delta),
+        h_over_dx: env("HDX", d.h_over_dx),
         kernel,
-        ..Default::default()
+        ..d
     };
     let mut sim = scene.build(params)?;
     let t0 = std::time::Instant::now();
