@@ -10,6 +10,8 @@
 //! | [`riemann`] | exact Riemann solver of the 1D Euler equations ([`riemann::solve`], [`GasState`]) |
 //! | [`sph1d`] | [`Sph1d`]: compressible 1D SPH (grad-h, Monaghan viscosity), [`ShockTube`] (Sod by default; `build_as::<f32>` for single precision), periodic boxes |
 //! | [`wcsph`] | [`Wcsph`]: 2D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, extrapolated wall particles), [`DamBreak`] (Martin & Moyce; [`DamBreak::build_as`] picks `f32` or `f64`) |
+//! | [`wcsph3d`] | [`wcsph3d::Wcsph3d`]: 3D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, wall layers with extrapolated pressure), [`wcsph3d::DamBreak3d`] (quasi-2D Martin & Moyce column spanning the tank's depth), [`wcsph3d::BlockDrop3d`] (blocks and balls dropped into a box) |
+//! | [`liquid3d`] | CConv-style 3D liquid data: [`liquid3d::Liquid3dConfig`] draws seeded block-drop scenes and writes per-scene `.npz` (`pos`, `vel` per frame, `box`, `box_normals`) plus a JSON sidecar |
 //! | [`iisph`] | [`Iisph`]: 2D implicit incompressible SPH (relaxed-Jacobi pressure solve to a stated density tolerance, wall particles), [`DamBreak::build_iisph`] / [`DamBreak::build_iisph_as`] |
 //! | [`dfsph`] | [`dfsph::Dfsph`]: 2D divergence-free SPH (Bender & Koschier: divergence-free solve + constant-density solve with the α factors, warm start; IISPH's wall particles), [`DamBreak::build_dfsph`] / [`DamBreak::build_dfsph_as`] |
 //! | [`walls`] | wall particles shared by WCSPH, IISPH and DFSPH: Adami, Hu & Adams (2012) pressure extrapolation with the hydrostatic term and no-slip wall velocity ([`walls::WallStencil`]), the impermeable-container fallback and leak/front diagnostics |
@@ -40,6 +42,7 @@ pub mod dfsph;
 pub mod error;
 pub mod iisph;
 pub mod kernels;
+pub mod liquid3d;
 pub mod neighbors;
 pub mod render;
 pub mod riemann;
@@ -48,6 +51,7 @@ pub mod sph1d;
 pub mod validation;
 pub mod walls;
 pub mod wcsph;
+pub mod wcsph3d;
 
 pub use error::{Error, Result};
 pub use iisph::{Iisph, IisphParams};

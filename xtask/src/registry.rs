@@ -111,6 +111,7 @@ pub fn all() -> Vec<CrateTasks> {
         crate::entries::metrics::tasks(),
         crate::entries::optim::tasks(),
         crate::entries::particles::tasks(),
+        crate::entries::particles3d::tasks(),
         crate::entries::diffusion::tasks(),
         crate::entries::nets::tasks(),
         crate::entries::pconv::tasks(),

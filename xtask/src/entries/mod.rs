@@ -10,6 +10,7 @@ pub mod metrics;
 pub mod nets;
 pub mod optim;
 pub mod particles;
+pub mod particles3d;
 pub mod pconv;
 pub mod smoke3d;
 pub mod sol;
