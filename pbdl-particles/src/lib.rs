@@ -8,7 +8,8 @@
 //! | [`neighbors`] | [`CellList`] (counting sort on cell keys, 1D/2D/3D, periodic or bounded, rayon), CSR [`NeighborList`] and pair lists, [`neighbors::brute_force`] |
 //! | [`kernels`] | [`Kernel`]: cubic spline, quintic, Wendland C2/C4, poly6, spiky in 1D/2D/3D with gradients |
 //! | [`riemann`] | exact Riemann solver of the 1D Euler equations ([`riemann::solve`], [`GasState`]) |
-//! | [`sph1d`] | [`Sph1d`]: compressible 1D SPH (grad-h, Monaghan viscosity), [`ShockTube`] (Sod by default; `build_as::<f32>` for single precision), periodic boxes |
+//! | [`hll`] | first-order HLL finite-volume reference for shock tubes ([`hll::solve`], Toro's pressure-based wave speeds, transmissive ends) |
+//! | [`sph1d`] | [`Sph1d`]: compressible 1D SPH (grad-h; Monaghan viscosity with the Morris & Monaghan switch, Price's artificial conductivity), [`ShockTube`] (any left/right states, moving ends; Sod by default; `build_as::<f32>` for single precision), periodic boxes |
 //! | [`wcsph`] | [`Wcsph`]: 2D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, extrapolated wall particles), [`DamBreak`] (Martin & Moyce; [`DamBreak::build_as`] picks `f32` or `f64`) |
 //! | [`wcsph3d`] | [`wcsph3d::Wcsph3d`]: 3D weakly compressible SPH (Tait, Monaghan viscosity, δ-SPH, wall layers with extrapolated pressure), [`wcsph3d::DamBreak3d`] (quasi-2D Martin & Moyce column spanning the tank's depth), [`wcsph3d::BlockDrop3d`] (blocks and balls dropped into a box) |
 //! | [`liquid3d`] | CConv-style 3D liquid data: [`liquid3d::Liquid3dConfig`] draws seeded block-drop scenes and writes per-scene `.npz` (`pos`, `vel` per frame, `box`, `box_normals`) plus a JSON sidecar |
@@ -40,6 +41,7 @@
 
 pub mod dfsph;
 pub mod error;
+pub mod hll;
 pub mod iisph;
 pub mod kernels;
 pub mod liquid3d;

@@ -50,7 +50,7 @@ pub fn tasks() -> CrateTasks {
             },
             Entry {
                 name: "sod",
-                about: "Sod shock tube: run time against L1(rho) at several particle counts.",
+                about: "Shock-tube set (Sod, Toro 1-5, gamma 5/3 colliding streams), N = 400 and 1600: SPH (defaults and constant viscosity) and the HLL reference, time against L1(rho).",
                 run: bench_sod,
             },
             Entry {
@@ -82,7 +82,7 @@ pub fn tasks() -> CrateTasks {
             },
             Entry {
                 name: "strong_shocks",
-                about: "Shock tubes with pressure ratios up to 1e5 stay finite and positive.",
+                about: "Strong shocks with moving end states (Toro 3-5, pressure ratios up to 1e5, u_L = 1): finite, positive density and energy.",
                 run: stress_shocks,
             },
             Entry {
@@ -394,30 +394,64 @@ fn bench_neighbors(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     Ok(vec![neighbor_row::<2>(n, reps, ctx.threads)?, neighbor_row::<3>(n, reps, ctx.threads)?])
 }
 
+/// The shock-tube set of issue 24 (Sod, Toro's tests 1-5, γ = 5/3 colliding streams) in tubes
+/// fitted around their waves ([`ShockTube::fitted`]): a rollout of SPH with its defaults
+/// (conductivity + Morris & Monaghan switch), of SPH with the round-1 constant viscosity, and of
+/// the first-order HLL finite-volume reference with as many cells (`hll_fv`, an internal
+/// comparison, not a peer), each with its L1(ρ) over the judged interval.
 fn bench_sod(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
-    let sizes: &[usize] = if ctx.quick { &[100, 225] } else { &[100, 225, 450, 900, 1800] };
-    let tube = ShockTube::sod();
-    let exact = tube.exact()?;
+    use pbdl_particles::{hll, GasState};
+    let gas = |rho, u, p| GasState { rho, u, p };
+    let cases = [
+        ("sod", gas(1.0, 0.0, 1.0), gas(0.125, 0.0, 0.1), 1.4, 0.2),
+        ("toro_1", gas(1.0, 0.75, 1.0), gas(0.125, 0.0, 0.1), 1.4, 0.2),
+        ("toro_2_123", gas(1.0, -2.0, 0.4), gas(1.0, 2.0, 0.4), 1.4, 0.15),
+        ("toro_3_left_blast", gas(1.0, 0.0, 1000.0), gas(1.0, 0.0, 0.01), 1.4, 0.012),
+        ("toro_4_right_blast", gas(1.0, 0.0, 0.01), gas(1.0, 0.0, 100.0), 1.4, 0.035),
+        ("toro_5_colliding_shocks", gas(5.99924, 19.5975, 460.894), gas(5.99242, -6.19633, 46.0950), 1.4, 0.035),
+        ("colliding_gamma_5_3", gas(1.0, 0.5, 1.0), gas(0.25, -0.5, 0.2), 5.0 / 3.0, 0.15),
+    ];
+    let sizes: &[usize] = if ctx.quick { &[400] } else { &[400, 1600] };
     let mut rows = Vec::new();
-    for &n in sizes {
-        let mut err = 0.0;
-        let secs = median_seconds(0, if ctx.quick { 1 } else { 3 }, || {
-            let mut sim = tube.build(n, Sph1dParams::default()).ok()?;
-            sim.run_until(0.2).ok()?;
-            err = sim.l1_errors(0.0, 0.4, |x| exact.at(x, 0.0, 0.2)).rho;
-            Some(())
-        });
-        rows.push(BenchRow {
-            case: "sod_shock_tube".into(),
-            method: "pbdl_sph1d_gradh".into(),
-            size: format!("n{n}"),
-            seconds: secs,
-            unit: "rollout to t = 0.2".into(),
-            error: Some(err),
-            error_kind: "l1_rho_abs_x_lt_0.4".into(),
-            peer: false,
-            threads: ctx.threads,
-        });
+    for (name, left, right, gamma, t) in cases {
+        let fitted = ShockTube::fitted(left, right, gamma, t)?;
+        let tube = fitted.tube;
+        let exact = tube.exact()?;
+        let (mid, half) = (0.5 * (fitted.judged.0 + fitted.judged.1), 0.5 * (fitted.judged.1 - fitted.judged.0));
+        let reference = |x: f64| exact.at(x, 0.0, t);
+        for &n in sizes {
+            let row = |method: &str, secs: f64, err: f64| BenchRow {
+                case: format!("shock_tube_{name}"),
+                method: method.into(),
+                size: format!("n{n}"),
+                seconds: secs,
+                unit: format!("rollout to t = {t}"),
+                error: Some(err),
+                error_kind: "l1_rho_judged_interval".into(),
+                peer: false,
+                threads: ctx.threads,
+            };
+            for (method, params) in [
+                ("pbdl_sph1d_gradh", Sph1dParams::default()),
+                ("pbdl_sph1d_const_visc", Sph1dParams::constant_viscosity()),
+            ] {
+                let mut err = f64::NAN;
+                let secs = median_seconds(0, 1, || {
+                    let mut sim = tube.build(n, params).ok()?;
+                    sim.run_until(t).ok()?;
+                    err = sim.l1_errors(mid, half, reference).rho;
+                    Some(())
+                });
+                rows.push(row(method, secs, err));
+            }
+            let mut err = f64::NAN;
+            let secs = median_seconds(0, if ctx.quick { 1 } else { 3 }, || {
+                let fv = hll::solve(&tube, n, t, hll::DEFAULT_CFL).ok()?;
+                err = fv.l1_errors(mid, half, reference).rho;
+                Some(())
+            });
+            rows.push(row("hll_fv", secs, err));
+        }
     }
     Ok(rows)
 }
@@ -522,28 +556,56 @@ fn stress_dam_break(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
     ])
 }
 
+/// Strong shocks with moving end states (issue 24, bar S3): Toro's tests 3-5, Toro 3 with
+/// colliding end states, and Sod-like tubes with `u_L = 1` and pressure ratios 10, 1e3 and 1e5,
+/// each in a tube fitted around its waves ([`ShockTube::fitted`]) and run with the SPH defaults
+/// to its end time: the state stays finite with positive density and internal energy (hence
+/// pressure).
 fn stress_shocks(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    use pbdl_particles::GasState;
+    let gas = |rho, u, p| GasState { rho, u, p };
     let n = if ctx.quick { 200 } else { 800 };
+    let mut cases = vec![
+        ("toro_3_left_blast", gas(1.0, 0.0, 1000.0), gas(1.0, 0.0, 0.01), 0.012),
+        ("toro_4_right_blast", gas(1.0, 0.0, 0.01), gas(1.0, 0.0, 100.0), 0.035),
+        ("toro_5_colliding_shocks", gas(5.99924, 19.5975, 460.894), gas(5.99242, -6.19633, 46.0950), 0.035),
+        ("toro_3_colliding", gas(1.0, 1.0, 1000.0), gas(1.0, -1.0, 0.01), 0.012),
+    ];
+    for (name, ratio) in [("sod_moving_p1e1", 1e1), ("sod_moving_p1e3", 1e3), ("sod_moving_p1e5", 1e5)] {
+        // p_L = 1, p_R = 1 / ratio, u_L = 1; the end time lets the fastest wave run 0.4.
+        let (left, right) = (gas(1.0, 1.0, 1.0), gas(0.125, 0.0, 1.0 / ratio));
+        let ex = pbdl_particles::riemann::solve(left, right, 1.4)?;
+        let speed = (ex.u_star.abs() + left.sound_speed(1.4)).max(left.u + left.sound_speed(1.4));
+        cases.push((name, left, right, 0.4 / speed));
+    }
     let mut checks = Vec::new();
-    for (k, ratio) in [10.0, 1e3, 1e5].into_iter().enumerate() {
-        let mut tube = ShockTube::sod();
-        tube.left.p = ratio * tube.right.p;
-        let exact = tube.exact()?;
-        let t_end = 0.25 * 0.4 / (exact.u_star.abs() + exact.left.sound_speed(tube.gamma));
+    for (k, (name, left, right, t_end)) in cases.into_iter().enumerate() {
+        let tube = ShockTube::fitted(left, right, 1.4, t_end)?.tube;
+        let ratio = left.p.max(right.p) / left.p.min(right.p);
         let mut sim = tube.build(n, Sph1dParams::default())?;
         let res = sim.run_until(t_end);
+        let nm = sim.n_mobile();
         let ok = res.is_ok()
-            && (0..sim.n_mobile())
-                .all(|i| sim.rho[i] > 0.0 && sim.u[i] > 0.0 && sim.v[i].is_finite() && sim.x[i].is_finite());
+            && (0..nm).all(|i| {
+                sim.rho[i] > 0.0 && sim.u[i] > 0.0 && sim.p[i] > 0.0 && sim.v[i].is_finite() && sim.x[i].is_finite()
+            });
+        let min_rho = sim.rho[..nm].iter().copied().fold(f64::INFINITY, f64::min);
+        let min_p = sim.p[..nm].iter().copied().fold(f64::INFINITY, f64::min);
         checks.push(StressCheck {
-            invariant: format!("shock tube p_L/p_R = {ratio:e}: finite, positive density and energy"),
+            invariant: format!(
+                "{name}: p ratio {ratio:.0e}, u_L = {}, u_R = {}: finite, positive density and energy",
+                left.u, right.u
+            ),
             passed: ok,
             first_broken_step: if ok { None } else { Some(sim.steps()) },
             detail: match res {
-                Ok(steps) => format!("{steps} steps to t = {t_end:.4}, case {k}"),
+                Ok(steps) => format!(
+                    "{steps} steps to t = {t_end:.4} at N = {n}, moving buffers {}; min rho {min_rho:.3e}, min p {min_p:.3e} (case {k})",
+                    sim.moving_buffers()
+                ),
                 Err(e) => e.to_string(),
             },
-            measure: None,
+            measure: if ok { Some(StressMeasure::StableSteps(sim.steps())) } else { None },
         });
     }
     Ok(checks)
