@@ -110,13 +110,7 @@ impl TemporalModel {
 
     /// Saves weights and info to `path` (atomically).
     pub fn save(&self, path: &Path) -> Result<()> {
-        let config = serde_json::to_value(&self.info).map_err(|e| Error::config("model info", e.to_string()))?;
-        pbdl_core::io::save_varmap(
-            path,
-            &self.varmap,
-            &CheckpointMeta { step: self.info.updates, seed: None, config },
-        )?;
-        Ok(())
+        save_with_info(path, &self.varmap, &self.info, self.info.updates)
     }
 
     /// Loads a model saved by [`TemporalModel::save`]; a file of another kind or a corrupt one
@@ -260,13 +254,7 @@ impl RecurrentModel {
 
     /// Saves weights and info to `path` (atomically).
     pub fn save(&self, path: &Path) -> Result<()> {
-        let config = serde_json::to_value(&self.info).map_err(|e| Error::config("model info", e.to_string()))?;
-        pbdl_core::io::save_varmap(
-            path,
-            &self.varmap,
-            &CheckpointMeta { step: self.info.updates, seed: None, config },
-        )?;
-        Ok(())
+        save_with_info(path, &self.varmap, &self.info, self.info.updates)
     }
 
     /// Loads a model saved by [`RecurrentModel::save`]; another kind of file is a typed error
@@ -285,6 +273,13 @@ impl RecurrentModel {
     pub fn factor(&self) -> usize {
         self.model.factor()
     }
+}
+
+/// Writes `varmap` with `info` as the checkpoint sidecar's config (atomically).
+fn save_with_info(path: &Path, varmap: &VarMap, info: &impl Serialize, updates: u64) -> Result<()> {
+    let config = serde_json::to_value(info).map_err(|e| Error::config("model info", e.to_string()))?;
+    pbdl_core::io::save_varmap(path, varmap, &CheckpointMeta { step: updates, seed: None, config })?;
+    Ok(())
 }
 
 /// Anything that upscales a low-resolution density sequence.
