@@ -59,6 +59,11 @@ pub fn tasks() -> CrateTasks {
                 run: bench_wcsph_step,
             },
             Entry {
+                name: "dam_break_solvers",
+                about: "Dam break to T = 2.5 with WCSPH, IISPH and DFSPH (issue-24 defaults) at dx = a/10, a/20, a/40 (a/10 quick): rollout time against the largest surge-front deviation from Martin & Moyce.",
+                run: bench_dam_break_solvers,
+            },
+            Entry {
                 name: "iisph_step",
                 about: "One IISPH dam-break step at dx = 0.05a (pressure solve to 0.1% density error).",
                 run: bench_iisph_step,
@@ -475,6 +480,48 @@ fn bench_wcsph_step(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
         peer: false,
         threads: ctx.threads,
     }])
+}
+
+/// Runs `sim` through Martin & Moyce's points in T in [1, 2.5] and returns the largest
+/// `|Z / Z_MM - 1|` of its surge front (`front(sim)` in m).
+fn worst_front_error<S: Evolve>(sim: &mut S, scene: &DamBreak, front: impl Fn(&S) -> f64) -> TaskResult<f64> {
+    let mut worst = 0.0f64;
+    for (big_t, z_mm) in mm_points() {
+        sim.run_until(scene.physical_time(big_t))?;
+        worst = worst.max((front(sim) / scene.a / z_mm - 1.0).abs());
+    }
+    Ok(worst)
+}
+
+fn bench_dam_break_solvers(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    let dxs: &[(f64, &str)] =
+        if ctx.quick { &[(0.1, "a/10")] } else { &[(0.1, "a/10"), (0.05, "a/20"), (0.025, "a/40")] };
+    let mut rows = Vec::new();
+    for &(dx, label) in dxs {
+        let scene = DamBreak { dx, ..Default::default() };
+        for method in ["pbdl_wcsph", "pbdl_iisph", "pbdl_dfsph"] {
+            let t0 = Instant::now();
+            let error = match method {
+                "pbdl_wcsph" => worst_front_error(&mut scene.build(WcsphParams::default())?, &scene, |s| s.front())?,
+                "pbdl_iisph" => {
+                    worst_front_error(&mut scene.build_iisph(IisphParams::default())?, &scene, |s| s.front())?
+                }
+                _ => worst_front_error(&mut scene.build_dfsph(Default::default())?, &scene, |s| s.front())?,
+            };
+            rows.push(BenchRow {
+                case: "dam_break_2d_front".into(),
+                method: method.into(),
+                size: format!("dx_{label}"),
+                seconds: t0.elapsed().as_secs_f64(),
+                unit: "build + rollout to T = 2.28 (one run)".into(),
+                error: Some(error),
+                error_kind: "max |Z/Z_MM - 1| of the surge front, T in [1, 2.5]".into(),
+                peer: false,
+                threads: ctx.threads,
+            });
+        }
+    }
+    Ok(rows)
 }
 
 fn bench_iisph_step(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
