@@ -14,11 +14,16 @@
 //! running): IISPH 87.0 ms (76.4-92.4) for 46 steps, 5.67 iterations/step, mean compression max
 //! 1.080e-3; DFSPH 85.5 ms (81.2-90.2) for 47 steps, 4.13 density + 1.00 divergence
 //! iterations/step, mean compression max 9.148e-4. The ranges overlap again.
+//!
+//! `dam_break_3d_step_dfsph_a10`: one 3D DFSPH step (`DamBreak3d::build_dfsph`,
+//! `DfsphParams::default_3d`) at dx = a/10 (1,000 fluid particles), from a copy of the column 20
+//! steps after its release (T ~ 0.4); its per-step numbers are printed after the timing.
 
 #![allow(missing_docs)] // criterion_group! generates undocumented items
 
-use criterion::{criterion_group, Criterion};
+use criterion::{criterion_group, BatchSize, Criterion};
 use pbdl_particles::dfsph::DfsphParams;
+use pbdl_particles::wcsph3d::DamBreak3d;
 use pbdl_particles::{DamBreak, Evolve, IisphParams};
 
 const BIG_T: f64 = 1.0;
@@ -68,10 +73,32 @@ fn dfsph_vs_iisph(c: &mut Criterion) {
     );
 }
 
+fn dfsph_3d_step(c: &mut Criterion) {
+    let scene = DamBreak3d { dx: 0.1, ..DamBreak3d::default() };
+    let mut sim = scene.build_dfsph(DfsphParams::default_3d()).unwrap();
+    for _ in 0..20 {
+        sim.step(sim.stable_dt()).unwrap();
+    }
+    let dt = sim.stable_dt();
+    c.bench_function("dam_break_3d_step_dfsph_a10", |b| {
+        b.iter_batched(|| sim.clone(), |mut s| s.step(dt).unwrap(), BatchSize::LargeInput)
+    });
+    sim.step(dt).unwrap();
+    let s = sim.last_solve();
+    eprintln!(
+        "dfsph 3D a/10: {} fluid + {} wall particles, dt {dt:.2e} s, {} density + {} divergence iterations, mean compression {:.3e}",
+        sim.n_fluid(),
+        sim.x.len() - sim.n_fluid(),
+        s.iterations,
+        s.divergence_iterations,
+        sim.average_compression().unwrap()
+    );
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(10);
-    targets = dfsph_vs_iisph
+    targets = dfsph_vs_iisph, dfsph_3d_step
 }
 fn main() {
     pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers"); // one thread policy for rayon, candle and gemm

@@ -1,5 +1,6 @@
-//! Wall particles of the 2D SPH solvers ([`crate::Wcsph`], [`crate::Iisph`],
-//! [`crate::dfsph::Dfsph`]): one implementation of Adami, Hu & Adams (2012), "A generalized wall
+//! Wall particles of the SPH solvers ([`crate::Wcsph`], [`crate::Iisph`] and
+//! [`crate::dfsph::Dfsph`] in 2D; [`crate::wcsph3d::Wcsph3d`] and the 3D [`crate::dfsph::Dfsph`]
+//! in 3D; every item is generic over the dimension `D`): one implementation of Adami, Hu & Adams (2012), "A generalized wall
 //! boundary condition for smoothed particle hydrodynamics", J. Comput. Phys. 231, 7057-7075, and
 //! the container diagnostics the solvers share.
 //!
@@ -40,28 +41,54 @@ use rayon::prelude::*;
 
 /// Per wall particle, its fluid neighbours with the kernel weight `W_wf` and the offset
 /// `x_w - x_f` (a transposed, wall-rows-only neighbour list); see the module docs.
-#[derive(Clone, Debug, Default)]
-pub struct WallStencil<T: Real> {
+#[derive(Clone, Debug)]
+pub struct WallStencil<T: Real, const D: usize = 2> {
     n_fluid: usize,
     offsets: Vec<usize>,
     fluid: Vec<u32>,
     w: Vec<T>,
-    d: Vec<[T; 2]>,
+    d: Vec<[T; D]>,
     inv_sum: Vec<T>,
     fill: Vec<usize>,
 }
 
-impl<T: Real> WallStencil<T> {
+// Not derived: `[T; D]: Default` does not hold for every `D`.
+impl<T: Real, const D: usize> Default for WallStencil<T, D> {
+    fn default() -> Self {
+        WallStencil {
+            n_fluid: 0,
+            offsets: Vec::new(),
+            fluid: Vec::new(),
+            w: Vec::new(),
+            d: Vec::new(),
+            inv_sum: Vec::new(),
+            fill: Vec::new(),
+        }
+    }
+}
+
+/// `a·b`, summed from the first component on (in 2D `a0 b0 + a1 b1`, the same operations in the
+/// same order as the 2D solvers' hand-written sums, so their results are unchanged bit for bit).
+#[inline]
+fn dot<T: Real, const D: usize>(a: &[T; D], b: &[T; D]) -> T {
+    let mut s = a[0] * b[0];
+    for k in 1..D {
+        s += a[k] * b[k];
+    }
+    s
+}
+
+impl<T: Real, const D: usize> WallStencil<T, D> {
     /// Rebuilds the stencil for the positions `x` (fluid first, then `x.len() - n_fluid` wall
     /// particles) from `nl`, whose first `n_fluid` rows are the fluid particles' neighbour lists
     /// (further rows, if any, are not read).
     pub fn build(
         &mut self,
-        x: &[[T; 2]],
+        x: &[[T; D]],
         n_fluid: usize,
         nl: &NeighborList,
         kernel: &Kernel<T>,
-        domain: &Domain<T, 2>,
+        domain: &Domain<T, D>,
     ) {
         let n_wall = x.len() - n_fluid;
         self.n_fluid = n_fluid;
@@ -81,7 +108,7 @@ impl<T: Real> WallStencil<T> {
         let total = self.offsets[n_wall];
         self.fluid.resize(total, 0);
         self.w.resize(total, T::zero());
-        self.d.resize(total, [T::zero(); 2]);
+        self.d.resize(total, [T::zero(); D]);
         self.fill.clear();
         self.fill.extend_from_slice(&self.offsets[..n_wall]);
         for f in 0..n_fluid {
@@ -96,7 +123,7 @@ impl<T: Real> WallStencil<T> {
                 // displacement(a, b) = b - a: the offset x_w - x_f.
                 let d = domain.displacement(&x[f], &x[j]);
                 self.fluid[slot] = f as u32;
-                self.w[slot] = kernel.w((d[0] * d[0] + d[1] * d[1]).sqrt());
+                self.w[slot] = kernel.w(dot(&d, &d).sqrt());
                 self.d[slot] = d;
             }
         }
@@ -124,8 +151,8 @@ impl<T: Real> WallStencil<T> {
     /// into `out` (one per wall particle), with `accel = g - a_w` (gravity for a tank at rest; a
     /// zero `accel` extrapolates without the hydrostatic term, as for an impulse pressure). A wall
     /// particle without fluid neighbours gets 0. `p` and `rho` are indexed by fluid particle.
-    pub fn pressure(&self, p: &[T], rho: &[T], accel: [T; 2], out: &mut Vec<T>) {
-        let hydro = accel != [T::zero(); 2];
+    pub fn pressure(&self, p: &[T], rho: &[T], accel: [T; D], out: &mut Vec<T>) {
+        let hydro = accel != [T::zero(); D];
         out.clear();
         out.resize(self.n_wall(), T::zero());
         out.par_iter_mut().enumerate().for_each(|(k, pw)| {
@@ -134,7 +161,7 @@ impl<T: Real> WallStencil<T> {
                 let f = self.fluid[e] as usize;
                 let mut pf = p[f];
                 if hydro {
-                    pf += rho[f] * (accel[0] * self.d[e][0] + accel[1] * self.d[e][1]);
+                    pf += rho[f] * dot(&accel, &self.d[e]);
                 }
                 s += pf * self.w[e];
             }
@@ -145,17 +172,18 @@ impl<T: Real> WallStencil<T> {
     /// No-slip wall velocities `2 v_w - ṽ_w = -ṽ_w` (walls at rest), `ṽ_w = Σ_f v_f W_wf / Σ_f W_wf`,
     /// into `out` (one per wall particle; 0 without fluid neighbours). `v` is indexed by fluid
     /// particle.
-    pub fn no_slip_velocity(&self, v: &[[T; 2]], out: &mut Vec<[T; 2]>) {
+    pub fn no_slip_velocity(&self, v: &[[T; D]], out: &mut Vec<[T; D]>) {
         out.clear();
-        out.resize(self.n_wall(), [T::zero(); 2]);
+        out.resize(self.n_wall(), [T::zero(); D]);
         out.par_iter_mut().enumerate().for_each(|(k, vw)| {
-            let mut s = [T::zero(); 2];
+            let mut s = [T::zero(); D];
             for e in self.row(k) {
                 let f = self.fluid[e] as usize;
-                s[0] += v[f][0] * self.w[e];
-                s[1] += v[f][1] * self.w[e];
+                for c in 0..D {
+                    s[c] += v[f][c] * self.w[e];
+                }
             }
-            *vw = [-s[0] * self.inv_sum[k], -s[1] * self.inv_sum[k]];
+            *vw = s.map(|c| -c * self.inv_sum[k]);
         });
     }
 }
@@ -175,16 +203,16 @@ pub struct ContainerFix {
 /// particles: a density-deficient particle (spray, a broken-up film) has an extrapolated wall
 /// pressure of 0 and reaches `ρ0` only about `0.25 dx` behind the surface, so the wall
 /// particles alone may not stop it (see the iisph module docs for how rarely it acts).
-pub fn enforce_container<T: Real>(
-    x: &mut [[T; 2]],
-    v: &mut [[T; 2]],
+pub fn enforce_container<T: Real, const D: usize>(
+    x: &mut [[T; D]],
+    v: &mut [[T; D]],
     n_fluid: usize,
-    container: [[f64; 2]; 2],
+    container: [[f64; D]; 2],
 ) -> ContainerFix {
     let [lo, hi] = container.map(|b| b.map(T::c));
     let mut fix = ContainerFix::default();
     for i in 0..n_fluid {
-        for d in 0..2 {
+        for d in 0..D {
             let (below, above) = (lo[d] - x[i][d], x[i][d] - hi[d]);
             if below > T::zero() || above > T::zero() {
                 fix.depth = fix.depth.max(below.fmax(above).wide());
@@ -199,12 +227,12 @@ pub fn enforce_container<T: Real>(
 
 /// Fluid particles (the first `n_fluid` of `x`) outside the box `container` or non-finite,
 /// compared in `T`.
-pub fn leaked<T: Real>(x: &[[T; 2]], n_fluid: usize, container: [[f64; 2]; 2]) -> usize {
+pub fn leaked<T: Real, const D: usize>(x: &[[T; D]], n_fluid: usize, container: [[f64; D]; 2]) -> usize {
     let [lo, hi] = container.map(|b| b.map(T::c));
-    x[..n_fluid].iter().filter(|p| !(p[0] >= lo[0] && p[0] <= hi[0] && p[1] >= lo[1] && p[1] <= hi[1])).count()
+    x[..n_fluid].iter().filter(|p| !(0..D).all(|d| p[d] >= lo[d] && p[d] <= hi[d])).count()
 }
 
 /// The largest x of the first `n_fluid` particles (the surge front of a dam break).
-pub fn front<T: Real>(x: &[[T; 2]], n_fluid: usize) -> f64 {
+pub fn front<T: Real, const D: usize>(x: &[[T; D]], n_fluid: usize) -> f64 {
     x[..n_fluid].iter().fold(f64::NEG_INFINITY, |a, p| a.max(p[0].wide()))
 }

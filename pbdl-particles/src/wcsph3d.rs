@@ -13,7 +13,11 @@
 //! * walls (Adami, Hu & Adams 2012): several layers of fixed particles on the tank's lattice,
 //!   as thick as the kernel support, whose pressure is extrapolated from the fluid with the
 //!   hydrostatic term, `p_w = (Σ_f p_f W_wf + g·Σ_f ρ_f (x_w - x_f) W_wf) / Σ_f W_wf` (clamped
-//!   at 0), and density from the inverse equation of state; the viscosity sees wall velocity 0;
+//!   at 0), and density from the inverse equation of state; the viscosity sees wall velocity 0.
+//!   The extrapolation is [`crate::walls::WallStencil`], the one implementation of the 2D
+//!   solvers (since issue 24; the same formula as this module's former own copy, which divided
+//!   by `Σ_f W_wf` where the stencil multiplies by its inverse: results agree to round-off, the
+//!   dam-break front of bar 3D1 to the printed 3 digits and the same 1,517 steps);
 //! * kick-drift-kick leapfrog for `v` and `ρ`; stable step
 //!   `dt <= min(cfl h / (c0 + |v|max), 0.25 sqrt(h / |a|max), 0.125 h² / ν)`, `ν = α h c0 / 8`;
 //! * Wendland C2 kernel in 3D by default; rayon over particles (each particle's sums run in its
@@ -61,6 +65,7 @@
 use crate::error::{Error, Result};
 use crate::kernels::{Kernel, KernelKind};
 use crate::neighbors::{CellList, Domain, NeighborList};
+use crate::walls::WallStencil;
 use pbdl_core::stepper::Evolve;
 use pbdl_core::Real;
 use rayon::prelude::*;
@@ -256,7 +261,8 @@ impl Tank3d {
 
 /// The 3D dam break (Martin & Moyce 1952 geometry, `H/a = 2`): a water column `a` wide (x) and
 /// `2a` high (y) spanning the tank's full depth (z), so the flow is quasi-2D between two
-/// free-slip side walls. Defaults as fixed in the module docs.
+/// free-slip side walls. Defaults as fixed in the module docs. [`DamBreak3d::build`] gives the
+/// WCSPH stepper, [`DamBreak3d::build_dfsph`] (in [`crate::dfsph`]) the DFSPH one.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DamBreak3d {
@@ -310,19 +316,8 @@ impl DamBreak3d {
         big_t / (2.0 * self.g / self.a).sqrt()
     }
 
-    /// Builds the `f64` stepper.
-    ///
-    /// Errors: non-positive or non-finite sizes, spacing, gravity or density; a column that does
-    /// not fit the tank; fewer than 4 particles across the column or 2 across the depth.
-    pub fn build(&self, params: Wcsph3dParams) -> Result<Wcsph3d> {
-        self.build_as::<f64>(params)
-    }
-
-    /// Builds the stepper in precision `T` (`f32` or `f64`); the layout and the hydrostatic start
-    /// are computed in `f64` and rounded once.
-    ///
-    /// Errors: as [`DamBreak3d::build`].
-    pub fn build_as<T: Real>(&self, params: Wcsph3dParams) -> Result<Wcsph3d<T>> {
+    /// Checks the scene's numbers (positive and finite; the column fits the tank).
+    pub(crate) fn validate(&self) -> Result<()> {
         for (name, v) in [
             ("a", self.a),
             ("height_ratio", self.height_ratio),
@@ -341,16 +336,42 @@ impl DamBreak3d {
         if self.tank_width < 1.0 || self.tank_height < self.height_ratio {
             return Err(Error::invalid("tank_width", "the water column must fit into the tank"));
         }
-        check_params(&params)?;
+        Ok(())
+    }
+
+    /// The tank with `layers` wall layers, the fluid particles of the column (tank lattice cell
+    /// centres) and the column's height `H` in m; shared by the WCSPH and DFSPH builders
+    /// ([`DamBreak3d::build`], [`DamBreak3d::build_dfsph`]). Call [`DamBreak3d::validate`] first.
+    pub(crate) fn column(&self, layers: usize) -> Result<(Tank3d, Vec<[f64; 3]>, f64)> {
         let dx = self.dx * self.a;
         let (nfx, nfy) = ((1.0 / self.dx).round() as usize, (self.height_ratio / self.dx).round() as usize);
         if nfx < 4 || nfy < 4 {
             return Err(Error::invalid("dx", format!("{}; the column needs at least 4 particles per side", self.dx)));
         }
-        let layers = self.wall_layers.unwrap_or_else(|| params.wall_layers());
         let tank = Tank3d::new([self.tank_width * self.a, self.tank_height * self.a, self.depth * self.a], dx, layers)?;
         let (width, height) = (nfx as f64 * dx, nfy as f64 * dx);
         let fluid = tank.fluid_cells(|p| p[0] < width && p[1] < height);
+        Ok((tank, fluid, height))
+    }
+
+    /// Builds the `f64` stepper.
+    ///
+    /// Errors: non-positive or non-finite sizes, spacing, gravity or density; a column that does
+    /// not fit the tank; fewer than 4 particles across the column or 2 across the depth.
+    pub fn build(&self, params: Wcsph3dParams) -> Result<Wcsph3d> {
+        self.build_as::<f64>(params)
+    }
+
+    /// Builds the stepper in precision `T` (`f32` or `f64`); the layout and the hydrostatic start
+    /// are computed in `f64` and rounded once.
+    ///
+    /// Errors: as [`DamBreak3d::build`].
+    pub fn build_as<T: Real>(&self, params: Wcsph3dParams) -> Result<Wcsph3d<T>> {
+        self.validate()?;
+        check_params(&params)?;
+        let layers = self.wall_layers.unwrap_or_else(|| params.wall_layers());
+        let (tank, fluid, height) = self.column(layers)?;
+        let dx = tank.dx;
         let c0 = self.c0_factor * (self.g * height).sqrt();
         let b = self.rho0 * c0 * c0 / 7.0;
         // Hydrostatic start: p = ρ0 g (H - y), ρ from the inverse Tait law.
@@ -595,7 +616,7 @@ pub struct Wcsph3d<T: Real = f64> {
     drho: Vec<T>,
     v_half: Vec<[T; 3]>,
     rho_half: Vec<T>,
-    wall_w: Vec<T>,
+    walls: WallStencil<T, 3>,
     wall_p: Vec<T>,
     n_fluid: usize,
     container: [[f64; 3]; 2],
@@ -696,7 +717,7 @@ impl<T: Real> Wcsph3d<T> {
             drho: vec![T::zero(); n_fluid],
             v_half: Vec::with_capacity(n_fluid),
             rho_half: Vec::with_capacity(n_fluid),
-            wall_w: Vec::new(),
+            walls: WallStencil::default(),
             wall_p: Vec::new(),
             x,
             v,
@@ -791,7 +812,6 @@ impl<T: Real> Wcsph3d<T> {
 
     fn evaluate(&mut self) -> Result<()> {
         let nf = self.n_fluid;
-        let n = self.x.len();
         // Only the fluid needs neighbour lists: a wall particle's sums are scattered from the
         // fluid lists (the search radius is symmetric, so it sees the same pairs).
         self.cells.build(&self.x)?;
@@ -802,29 +822,15 @@ impl<T: Real> Wcsph3d<T> {
             let (rho, p) = (&self.rho, &mut self.p);
             p[..nf].par_iter_mut().zip(rho[..nf].par_iter()).for_each(|(p, r)| *p = b * ((*r / rho0).powi(7) - one));
         }
-        // Wall pressure and density extrapolated from the fluid (Adami et al. 2012):
-        // p_w = sum_f (p_f + rho_f g.(x_w - x_f)) W_wf / sum_f W_wf. Sequential scatter: a fixed
-        // summation order keeps runs bit-reproducible.
+        // Wall pressure extrapolated from the fluid (Adami et al. 2012) by the one
+        // implementation the 2D solvers use (crate::walls::WallStencil):
+        // p_w = max(0, Σ_f (p_f + ρ_f g·(x_w - x_f)) W_wf / Σ_f W_wf), each sum in fluid order
+        // (bit-reproducible); the wall density from the inverse equation of state.
         let g = self.phys.gravity.map(T::c);
-        self.wall_w.clear();
-        self.wall_w.resize(n - nf, zero);
-        self.wall_p.clear();
-        self.wall_p.resize(n - nf, zero);
-        for f in 0..nf {
-            for &w in self.nl.neighbors(f) {
-                let w = w as usize;
-                if w < nf {
-                    continue;
-                }
-                let d: [T; 3] = std::array::from_fn(|k| self.x[w][k] - self.x[f][k]);
-                let wk = self.kernel.w(dot(d, d).sqrt());
-                self.wall_w[w - nf] += wk;
-                self.wall_p[w - nf] += (self.p[f] + self.rho[f] * dot(g, d)) * wk;
-            }
-        }
-        for k in 0..n - nf {
-            let (sw, sp) = (self.wall_w[k], self.wall_p[k]);
-            let pw = if sw > zero { (sp / sw).fmax(zero) } else { zero };
+        let dom = *self.cells.domain();
+        self.walls.build(&self.x, nf, &self.nl, &self.kernel, &dom);
+        self.walls.pressure(&self.p[..nf], &self.rho[..nf], g, &mut self.wall_p);
+        for (k, &pw) in self.wall_p.iter().enumerate() {
             self.p[nf + k] = pw;
             self.rho[nf + k] = rho0 * (pw / b + one).powf(seventh);
         }

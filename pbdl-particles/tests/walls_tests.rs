@@ -132,3 +132,39 @@ fn w2_dfsph_no_particle_leaves_the_tank_to_t10() {
     );
     assert_eq!(worst, 0);
 }
+
+/// The same stencil in 3D (`WallStencil<T, 3>`, used by the 3D WCSPH and DFSPH): two fluid
+/// particles above and beside one wall particle give the weighted pressure with the hydrostatic
+/// term and the no-slip velocity; the container helpers clamp and count in 3D.
+#[test]
+fn stencil_and_container_in_3d() {
+    let dx = 0.1;
+    let x = vec![[0.0, 0.1, 0.0], [0.1, 0.1, 0.1], [0.0, 0.0, 0.0]];
+    let domain = Domain::bounded([-1.0; 3], [1.0; 3]);
+    let k = Kernel::<f64>::new(KernelKind::WendlandC2, 3, 1.3 * dx).unwrap();
+    let mut cells = CellList::new(domain, k.support()).unwrap();
+    let mut nl = NeighborList::default();
+    cells.build(&x).unwrap();
+    cells.query_first(2, &mut nl);
+    let mut st = WallStencil::<f64, 3>::default();
+    st.build(&x, 2, &nl, &k, &domain);
+    assert_eq!(st.n_wall(), 1);
+    let (w0, w1) = (k.w(0.1), k.w((0.03f64).sqrt()));
+    let mut pw = Vec::new();
+    st.pressure(&[100.0, 300.0], &[1000.0, 1000.0], [0.0, -9.81, 0.0], &mut pw);
+    let expect = (w0 * (100.0 + 981.0) + w1 * (300.0 + 981.0)) / (w0 + w1);
+    assert!((pw[0] - expect).abs() < 1e-9 * expect, "{} vs {expect}", pw[0]);
+    let mut vw = Vec::new();
+    st.no_slip_velocity(&[[0.0, 0.0, 1.0], [0.0, 0.0, 3.0]], &mut vw);
+    let expect = -(w0 * 1.0 + w1 * 3.0) / (w0 + w1);
+    assert!((vw[0][2] - expect).abs() < 1e-12 && vw[0][0] == 0.0 && vw[0][1] == 0.0);
+    let mut xs = vec![[0.5, 0.5, -0.01], [0.5, 0.5, 0.5]];
+    let mut vs = vec![[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]];
+    let container = [[0.0; 3], [1.0; 3]];
+    assert_eq!(leaked(&xs, 2, container), 1);
+    let fix = enforce_container(&mut xs, &mut vs, 2, container);
+    assert_eq!(fix.corrections, 1);
+    assert!((fix.depth - 0.01).abs() < 1e-12);
+    assert_eq!((xs[0][2], vs[0][2], vs[1][2]), (0.0, 0.0, -1.0));
+    assert_eq!(leaked(&xs, 2, container), 0);
+}

@@ -7,15 +7,21 @@
 //!   spacing, frames 0.02 s apart) written as `.npz` with JSON sidecars (quick: the tiny set).
 //! * bench `wcsph3d_step`: one 3D dam-break step at several resolutions (rows in the shared
 //!   schema, `peer: false`).
+//! * bench `dfsph3d_step`: one 3D DFSPH dam-break step (`DamBreak3d::build_dfsph`,
+//!   `DfsphParams::default_3d`) at the same resolutions, with the step's mean compression as
+//!   its error (DFSPH's steps are ~10x longer in time than WCSPH's).
 //! * stress `dam_break_3d_long`: the 3D dam break to T = 10 at dx = a/20 (quick: a/8 to T = 3),
 //!   finite and with no particle outside the tank, checked every 0.1 T.
-//! * stress `acceptance`: the README's bars 3D1 from their `#[ignore]`d tests
+//! * stress `dfsph3d_dam_break_long`: the same for 3D DFSPH, plus the largest mean compression
+//!   of the summation density (quick: a/8 to T = 3).
+//! * stress `acceptance`: the README's bars 3D1 and 3D3 from their `#[ignore]`d tests
 //!   ([`crate::acceptance`]).
 
 use crate::acceptance::AcceptanceTest;
 use crate::bench_schema::{format_seconds, median_seconds, BenchRow};
 use crate::registry::{CrateTasks, Entry, StressCheck, StressMeasure, TaskContext, TaskResult, TourOutcome, TourRow};
 use pbdl_core::viz::{self, ColorRange, FieldStyle, GifStyle};
+use pbdl_particles::dfsph::DfsphParams;
 use pbdl_particles::liquid3d::Liquid3dConfig;
 use pbdl_particles::render;
 use pbdl_particles::validation::martin_moyce_1952;
@@ -39,11 +45,18 @@ pub fn tasks() -> CrateTasks {
                 run: tour_liquid3d,
             },
         ],
-        bench: vec![Entry {
-            name: "wcsph3d_step",
-            about: "One 3D WCSPH dam-break step at several resolutions (dx = a/10, a/16, a/20; quick a/8, a/10).",
-            run: bench_wcsph3d_step,
-        }],
+        bench: vec![
+            Entry {
+                name: "wcsph3d_step",
+                about: "One 3D WCSPH dam-break step at several resolutions (dx = a/10, a/16, a/20; quick a/8, a/10).",
+                run: bench_wcsph3d_step,
+            },
+            Entry {
+                name: "dfsph3d_step",
+                about: "One 3D DFSPH dam-break step (tolerance 0.1%) at dx = a/10, a/16, a/20 (quick a/8, a/10); error: mean compression of the summation density the step leaves.",
+                run: bench_dfsph3d_step,
+            },
+        ],
         stress: vec![
             Entry {
                 name: "dam_break_3d_long",
@@ -51,8 +64,13 @@ pub fn tasks() -> CrateTasks {
                 run: stress_dam_break_3d,
             },
             Entry {
+                name: "dfsph3d_dam_break_long",
+                about: "3D DFSPH dam break to T = 10 at dx = a/20 (quick: a/8 to T = 3): finite, no particle leaves the tank (checked every 0.1 T), largest mean compression.",
+                run: stress_dfsph3d_dam_break,
+            },
+            Entry {
                 name: "acceptance",
-                about: "The README's 3D1 bars: runs their #[ignore]d tests in release (front ~1.5 min, T = 10 several minutes; quick runs the front only).",
+                about: "The README's 3D1 and 3D3 bars: runs their #[ignore]d tests in release (front ~1.5 min, T = 10 several minutes, 3D DFSPH ~1 min; quick leaves out the T = 10 WCSPH run).",
                 run: stress_acceptance,
             },
         ],
@@ -278,7 +296,94 @@ fn stress_dam_break_3d(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
     ])
 }
 
-/// The `#[ignore]`d tests behind the README's bar 3D1 (see [`crate::acceptance`]).
+fn bench_dfsph3d_step(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
+    let resolutions: &[f64] = if ctx.quick { &[8.0, 10.0] } else { &[10.0, 16.0, 20.0] };
+    let mut rows = Vec::new();
+    for &per_a in resolutions {
+        let scene = DamBreak3d { dx: 1.0 / per_a, ..DamBreak3d::default() };
+        let mut sim = scene.build_dfsph(DfsphParams::default_3d())?;
+        // As for WCSPH: a moving column (T ~ 0.5 at a/20), not the rest state.
+        for _ in 0..if ctx.quick { 3 } else { 20 } {
+            let dt = sim.stable_dt();
+            sim.step(dt)?;
+        }
+        let mut worst = 0.0f64;
+        let secs = median_seconds(1, if ctx.quick { 3 } else { 10 }, || {
+            let dt = sim.stable_dt();
+            let r = sim.step(dt).ok();
+            worst = worst.max(sim.last_solve().compression);
+            r
+        });
+        rows.push(BenchRow {
+            case: "dam_break_3d_step".into(),
+            method: "pbdl_dfsph3d".into(),
+            size: format!("{}f_{}w_dx_a{per_a:.0}", sim.n_fluid(), sim.x.len() - sim.n_fluid()),
+            seconds: secs,
+            unit: "step".into(),
+            error: Some(worst),
+            error_kind: "largest mean max(rho/rho0 - 1, 0) of the summation density over the timed steps".into(),
+            peer: false,
+            threads: ctx.threads,
+        });
+    }
+    Ok(rows)
+}
+
+fn stress_dfsph3d_dam_break(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
+    let scene = scene(ctx.quick);
+    let t_end: f64 = if ctx.quick { 3.0 } else { 10.0 };
+    let mut sim = scene.build_dfsph(DfsphParams::default_3d())?;
+    let (mut nan_at, mut leak_at, mut error) = (None, None, None);
+    let (mut max_leaked, mut max_comp) = (0usize, 0.0f64);
+    for k in 1..=(t_end / 0.1).round() as usize {
+        let big_t = 0.1 * k as f64;
+        if let Err(e) = sim.run_until(scene.physical_time(big_t)) {
+            error = Some(format!("T = {big_t:.1}: {e}"));
+            nan_at.get_or_insert(sim.steps());
+            break;
+        }
+        if !sim.is_finite() {
+            nan_at.get_or_insert(sim.steps());
+            break;
+        }
+        if sim.leaked() > 0 {
+            leak_at.get_or_insert(sim.steps());
+        }
+        max_leaked = max_leaked.max(sim.leaked());
+        max_comp = max_comp.max(sim.average_compression()?);
+    }
+    let res = format!("dx = a/{:.0}", 1.0 / scene.dx);
+    Ok(vec![
+        StressCheck {
+            invariant: format!("3D DFSPH dam break ({res}) to T = {t_end}: values finite"),
+            passed: nan_at.is_none(),
+            first_broken_step: nan_at,
+            detail: error.unwrap_or_else(|| {
+                format!(
+                    "{} steps, t = {:.3} s, {:.2} + {:.2} iterations per step, max mean compression (every 0.1 T) {max_comp:.2e}",
+                    sim.steps(),
+                    sim.time(),
+                    sim.total_iterations() as f64 / sim.steps().max(1) as f64,
+                    sim.total_divergence_iterations() as f64 / sim.steps().max(1) as f64
+                )
+            }),
+            measure: nan_at.is_none().then_some(StressMeasure::StableSteps(sim.steps())),
+        },
+        StressCheck {
+            invariant: "3D DFSPH: no fluid particle leaves the tank (checked every 0.1 T)".into(),
+            passed: leak_at.is_none() && nan_at.is_none(),
+            first_broken_step: leak_at,
+            detail: format!(
+                "at most {max_leaked} of {} outside; {} wall-fallback corrections",
+                sim.n_fluid(),
+                sim.wall_corrections()
+            ),
+            measure: None,
+        },
+    ])
+}
+
+/// The `#[ignore]`d tests behind the README's bars 3D1 and 3D3 (see [`crate::acceptance`]).
 const ACCEPTANCE: &[AcceptanceTest] = &[
     AcceptanceTest {
         package: "pbdl-particles",
@@ -294,6 +399,14 @@ const ACCEPTANCE: &[AcceptanceTest] = &[
         test: "dam_break_3d_to_t10_leaks_no_particle",
         claim: "3D1: 3D dam break (dx = a/20) to T = 10 finite with 0 leaked particles (checked every 0.1 T)",
         minutes: 6.0,
+        env: &[],
+    },
+    AcceptanceTest {
+        package: "pbdl-particles",
+        file: "dfsph3d_tests",
+        test: "bar_3d3_dam_break_dfsph_compression_leaks_and_front",
+        claim: "3D3: 3D DFSPH dam break (dx = a/20, tolerance 0.1%): mean compression <= 0.1% (D1's measure), 0 leaked to T = 10; front reported",
+        minutes: 1.0,
         env: &[],
     },
 ];
@@ -326,9 +439,11 @@ mod tests {
             assert_eq!(rows.len(), 2);
             assert!(rows.iter().all(|r| r.seconds > 0.0 && !r.peer));
         }
-        let long = tasks.stress.iter().find(|e| e.name == "dam_break_3d_long").unwrap();
-        for c in (long.run)(&ctx).unwrap() {
-            assert!(c.passed, "{}: {}", c.invariant, c.detail);
+        for name in ["dam_break_3d_long", "dfsph3d_dam_break_long"] {
+            let long = tasks.stress.iter().find(|e| e.name == name).unwrap();
+            for c in (long.run)(&ctx).unwrap() {
+                assert!(c.passed, "{}: {}", c.invariant, c.detail);
+            }
         }
     }
 }
