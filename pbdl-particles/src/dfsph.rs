@@ -289,6 +289,63 @@ impl DfsphParams {
     }
 }
 
+/// The largest eigenvalue `λ_max` of one relaxed-Jacobi sweep's operator `D⁻¹A` on the regular
+/// particle lattice of spacing 1 in `dim` dimensions (2 or 3) for `kernel` at `h = h_over_dx`:
+/// `λ(k) = |Σ_r sin(k·r) ∇W(r)|² / Σ_r |∇W(r)|²` over the lattice offsets `r` within the
+/// support, maximised over wave vectors `k` in `[0, π]^dim` (a grid of 33 points per axis: the
+/// function is smooth in `k`). The pressure solves of [`Dfsph`] converge for `ω λ_max < 2`; the
+/// constructors refuse an `omega` beyond that. Wendland C2 at `h = 1.385`: 2.886 (2D), 4.961
+/// (3D), see [`DfsphParams::default_3d`].
+pub fn jacobi_lambda_max(kernel: KernelKind, h_over_dx: f64, dim: usize) -> Result<f64> {
+    if !(dim == 2 || dim == 3) {
+        return Err(Error::invalid("dim", format!("{dim}; the lattice estimate covers 2D and 3D")));
+    }
+    let k = Kernel::<f64>::new(kernel, dim, h_over_dx)?;
+    let reach = k.support().ceil() as i64;
+    // Gradient vectors ∇W(r) of every lattice offset inside the support.
+    let mut grads: Vec<([f64; 3], [f64; 3])> = Vec::new();
+    let range = -reach..=reach;
+    for a in range.clone() {
+        for b in range.clone() {
+            for c in if dim == 3 { range.clone() } else { 0..=0 } {
+                let r = [a as f64, b as f64, c as f64];
+                let len = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+                if len == 0.0 || len >= k.support() {
+                    continue;
+                }
+                let s = k.dw_dr(len) / len;
+                grads.push((r, [s * r[0], s * r[1], s * r[2]]));
+            }
+        }
+    }
+    let norm: f64 = grads.iter().map(|(_, g)| g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sum();
+    if norm <= 0.0 {
+        return Err(Error::invalid(
+            "h_over_dx",
+            format!("{h_over_dx}; the kernel's support holds no lattice neighbour"),
+        ));
+    }
+    const STEPS: usize = 32;
+    let at = |i: usize| std::f64::consts::PI * i as f64 / STEPS as f64;
+    let mut best = 0.0f64;
+    for i in 0..=STEPS {
+        for j in 0..=STEPS {
+            for l in 0..=(if dim == 3 { STEPS } else { 0 }) {
+                let kv = [at(i), at(j), at(l)];
+                let mut sum = [0.0f64; 3];
+                for (r, g) in &grads {
+                    let sn = (kv[0] * r[0] + kv[1] * r[1] + kv[2] * r[2]).sin();
+                    for d in 0..3 {
+                        sum[d] += sn * g[d];
+                    }
+                }
+                best = best.max((sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]) / norm);
+            }
+        }
+    }
+    Ok(best)
+}
+
 /// Statistics of the last DFSPH step.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DfsphStats {
@@ -416,6 +473,21 @@ impl<T: Real, const D: usize> Dfsph<T, D> {
         // the neighbour search).
         let s2 = (k64.support() / dx).powi(2);
         let full_neighbours = lattice.iter().filter(|&&r2| r2 != 0 && (r2 as f64) < s2).count();
+        // A relaxation past the Jacobi limit of this lattice diverges within a few steps (in
+        // 3D the 2D default does): refuse it with the value that would work.
+        let lambda = jacobi_lambda_max(params.kernel, params.h_over_dx, D)?;
+        if params.omega * lambda >= 2.0 {
+            return Err(Error::invalid(
+                "omega",
+                format!(
+                    "{}: the pressure solves diverge on this {D}D particle lattice (omega * lambda_max = {:.2} >= 2, lambda_max = {lambda:.3} for this kernel and h_over_dx); use omega < {:.3}{}",
+                    params.omega,
+                    params.omega * lambda,
+                    2.0 / lambda,
+                    if D == 3 { ", e.g. DfsphParams::default_3d()" } else { "" }
+                ),
+            ));
+        }
         let cells = CellList::new(domain, kernel.support())?;
         Ok(Dfsph {
             full_neighbours,

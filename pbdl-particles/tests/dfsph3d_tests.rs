@@ -223,3 +223,28 @@ fn dfsph3d_front_band_0_to_10_percent() {
     }
     assert!(outside.is_empty(), "outside 0..+10%: {}", outside.join("; "));
 }
+
+/// The Jacobi stability estimate behind `DfsphParams::default_3d` (its docs quote 2.886 in 2D
+/// and 4.961 in 3D for Wendland C2 at h = 1.385 dx), and the typed error it gives: the 2D
+/// default ω = 0.5 (ω λ_max = 2.48) is refused in 3D instead of diverging silently, naming the
+/// largest ω that converges.
+#[test]
+fn jacobi_limit_refuses_a_diverging_relaxation() {
+    use pbdl_particles::dfsph::jacobi_lambda_max;
+    use pbdl_particles::KernelKind;
+    let l2 = jacobi_lambda_max(KernelKind::WendlandC2, 1.385, 2).unwrap();
+    let l3 = jacobi_lambda_max(KernelKind::WendlandC2, 1.385, 3).unwrap();
+    assert!((l2 - 2.886).abs() < 0.01 && (l3 - 4.961).abs() < 0.01, "{l2} {l3}");
+    let d = DfsphParams::default();
+    assert_eq!(d.h_over_dx, 1.385, "the quoted numbers assume the default smoothing length");
+    let err = coarse().build_dfsph(d).unwrap_err();
+    match &err {
+        Error::Invalid { field, reason } => {
+            assert_eq!(*field, "omega");
+            assert!(reason.contains("use omega < 0.403") && reason.contains("default_3d"), "{reason}");
+        }
+        other => panic!("{other}"),
+    }
+    assert!(coarse().build_dfsph(DfsphParams::default_3d()).is_ok());
+    assert!(jacobi_lambda_max(KernelKind::WendlandC2, 1.385, 4).is_err());
+}
