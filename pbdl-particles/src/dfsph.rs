@@ -138,7 +138,9 @@ use serde::{Deserialize, Serialize};
 /// (Bender & Koschier 2017), the summation-density prediction (chosen for the density bar D1,
 /// on the density error, not on the front) and SPlisHSPlasH's particle-deficiency rule for the
 /// divergence-free solve (chosen because the dam break failed without it, see
-/// [`DfsphParams::divergence_min_neighbours`]). Walls: Adami et al. (2012), [`crate::walls`].
+/// [`DfsphParams::divergence_min_neighbours`]; it was added during the T = 10 leak runs, and
+/// whether that was before or after the first front comparison was not recorded). Walls: Adami et al. (2012),
+/// [`crate::walls`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DfsphParams {
@@ -894,7 +896,8 @@ impl<T: Real, const D: usize> Dfsph<T, D> {
                         let rj = if j < nf { rho[j] } else { rho0 };
                         let d = sub(&x[i], &x[j]);
                         let vx = dot(&sub(&v_div[i], &vj), &d);
-                        let cv = c(8.0) * nu * (m / rj) * vx / (dot(&d, &d) + eps);
+                        // The laminar-viscosity factor 2 (d + 2): 8 in 2D, 10 in 3D.
+                        let cv = c(2.0 * (D as f64 + 2.0)) * nu * (m / rj) * vx / (dot(&d, &d) + eps);
                         for q in 0..D {
                             a[q] += cv * gw[q];
                         }

@@ -121,16 +121,18 @@ fn wave_speeds(l: &GasState, r: &GasState, gamma: f64) -> (f64, f64) {
     }
 }
 
-fn hll_flux(l: &GasState, r: &GasState, ul: &Cons, ur: &Cons, gamma: f64) -> Cons {
+/// The HLL flux of a face and its fastest wave speed `max(|S_L|, |S_R|)`.
+fn hll_flux(l: &GasState, r: &GasState, ul: &Cons, ur: &Cons, gamma: f64) -> (Cons, f64) {
     let (sl, sr) = wave_speeds(l, r, gamma);
     let (fl, fr) = (flux(l, ul), flux(r, ur));
-    if sl >= 0.0 {
+    let f = if sl >= 0.0 {
         fl
     } else if sr <= 0.0 {
         fr
     } else {
         std::array::from_fn(|k| (sr * fl[k] - sl * fr[k] + sl * sr * (ur[k] - ul[k])) / (sr - sl))
-    }
+    };
+    (f, sl.abs().max(sr.abs()))
 }
 
 /// Solves `tube` to time `t` with `cells` uniform cells on `[x_lo, x_hi]` (each cell takes the
@@ -172,16 +174,20 @@ pub fn solve(tube: &ShockTube, cells: usize, t: f64, cfl: f64) -> Result<HllSolu
         if steps >= MAX_STEPS {
             return Err(Error::invalid("t", format!("{t} needs more than {MAX_STEPS} steps at {cells} cells")));
         }
-        let smax = prim.iter().map(|s| s.u.abs() + s.sound_speed(g)).fold(0.0, f64::max);
+        // The fastest signal: cell speeds |u| + c and the faces' wave estimates (a shock's
+        // estimate can exceed every cell's |u| + c, Toro §6.3.2).
+        let mut smax = prim.iter().map(|s| s.u.abs() + s.sound_speed(g)).fold(0.0, f64::max);
+        for (k, f) in fluxes.iter_mut().enumerate() {
+            // Transmissive ends: the ghost cell copies its neighbour.
+            let (l, r) = (k.saturating_sub(1), k.min(cells - 1));
+            let (flux, speed) = hll_flux(&prim[l], &prim[r], &cons[l], &cons[r], g);
+            *f = flux;
+            smax = smax.max(speed);
+        }
         let mut dt = cfl * dx / smax;
         // Land on `t` exactly; a step within round-off of it finishes the run.
         if time + dt >= t * (1.0 - 1e-14) {
             dt = t - time;
-        }
-        for (k, f) in fluxes.iter_mut().enumerate() {
-            // Transmissive ends: the ghost cell copies its neighbour.
-            let (l, r) = (k.saturating_sub(1), k.min(cells - 1));
-            *f = hll_flux(&prim[l], &prim[r], &cons[l], &cons[r], g);
         }
         let lambda = dt / dx;
         for (i, c) in cons.iter_mut().enumerate() {

@@ -126,6 +126,24 @@ impl Liquid3dConfig {
         if !self.box_size.iter().all(|&l| pos(l)) {
             return Err(Error::invalid("box_size", format!("{:?}; must be positive and finite", self.box_size)));
         }
+        // The tank is laid out in whole spacings; a side that is not a whole number of them
+        // would shrink the tank below the box the bodies are drawn in.
+        if let Some(&l) = self
+            .box_size
+            .iter()
+            .find(|&&l| ((l / self.spacing) - (l / self.spacing).round()).abs() > 1e-9 * (l / self.spacing))
+        {
+            return Err(Error::invalid(
+                "box_size",
+                format!("{l} is not a whole number of spacings ({}); use a multiple of the spacing", self.spacing),
+            ));
+        }
+        if self.frames > 1_000_000 || self.scenes > 1_000_000 {
+            return Err(Error::invalid(
+                "frames",
+                format!("{} frames x {} scenes; use at most 1e6 of each", self.frames, self.scenes),
+            ));
+        }
         if self.bodies[0] == 0 || self.bodies[0] > self.bodies[1] || self.bodies[1] > 64 {
             return Err(Error::invalid("bodies", format!("{:?}; use 1 <= min <= max <= 64", self.bodies)));
         }
@@ -219,8 +237,12 @@ impl Liquid3dConfig {
         let tank = scene.tank(&self.params)?;
         let (bpos, bnrm) = tank.boundary_with_normals();
         let n = sim.n_fluid();
-        let mut pos = Vec::with_capacity(self.frames * n * 3);
-        let mut vel = Vec::with_capacity(self.frames * n * 3);
+        // Refuse a trajectory that cannot be held (or indexed) before allocating it.
+        let len = self.frames.checked_mul(n * 3).filter(|&l| l <= (1usize << 32)).ok_or_else(|| {
+            Error::invalid("frames", format!("{} frames of {n} particles: more than 2^32 values per array; use fewer frames or a coarser spacing", self.frames))
+        })?;
+        let mut pos = Vec::with_capacity(len);
+        let mut vel = Vec::with_capacity(len);
         for f in 0..self.frames {
             if f > 0 {
                 sim.run_until(f as f64 * self.frame_dt)?;
@@ -260,7 +282,7 @@ impl Liquid3dConfig {
             let scene = self.simulate_with(k, |f| progress.set_position(done + f as u64 + 1))?;
             let npz = dir.join(format!("scene_{k:04}.npz"));
             scene.write_npz(&npz)?;
-            let json = self.sidecar_json(&scene);
+            let json = self.sidecar_json(&scene)?;
             pbdl_core::io::write_atomic(dir.join(format!("scene_{k:04}.json")), |w| w.write_all(json.as_bytes()))?;
             progress.println(format!(
                 "scene {k}: {} particles, {} frames, {} steps, {} leaked",
@@ -272,72 +294,30 @@ impl Liquid3dConfig {
         Ok(files)
     }
 
-    /// The JSON sidecar of a scene: the configuration, the seeds and the drawn bodies. Written
-    /// by hand (the crate has no JSON dependency); every number is finite after
-    /// [`Liquid3dConfig::validate`], and Rust's shortest round-trip float format is valid JSON.
-    fn sidecar_json(&self, s: &LiquidScene3d) -> String {
-        let p = &self.params;
-        let bodies: Vec<String> = s
-            .scene
-            .bodies
-            .iter()
-            .map(|b| match b.shape {
-                Shape3d::Block { lo, hi } => {
-                    format!("{{\"block\": {{\"lo\": {lo:?}, \"hi\": {hi:?}}}, \"velocity\": {:?}}}", b.velocity)
-                }
-                Shape3d::Sphere { center, radius } => format!(
-                    "{{\"sphere\": {{\"center\": {center:?}, \"radius\": {radius:?}}}, \"velocity\": {:?}}}",
-                    b.velocity
-                ),
-            })
-            .collect();
-        format!(
-            concat!(
-                "{{\n",
-                "  \"format\": \"pbdl liquid3d v1\",\n",
-                "  \"seed\": {seed},\n",
-                "  \"scene_index\": {index},\n",
-                "  \"scene_seed\": {scene_seed},\n",
-                "  \"config\": {{\"seed\": {seed}, \"scenes\": {scenes}, \"spacing\": {spacing:?}, \"frame_dt\": {frame_dt:?}, ",
-                "\"frames\": {frames}, \"box_size\": {box_size:?}, \"bodies\": {nbodies:?}, \"body_size\": {body_size:?}, ",
-                "\"sphere_fraction\": {sphere_fraction:?}, \"max_speed\": {max_speed:?}, \"g\": {g:?}, ",
-                "\"params\": {{\"kernel\": \"{kernel:?}\", \"h_over_dx\": {hdx:?}, \"alpha\": {alpha:?}, \"delta\": {delta:?}, \"cfl\": {cfl:?}}}}},\n",
-                "  \"solver\": \"wcsph3d\",\n",
-                "  \"c0\": {c0:?},\n",
-                "  \"rho0\": {rho0:?},\n",
-                "  \"n_fluid\": {n},\n",
-                "  \"n_box\": {nbox},\n",
-                "  \"steps\": {steps},\n",
-                "  \"arrays\": {{\"pos\": \"[frames, n_fluid, 3] f32 m\", \"vel\": \"[frames, n_fluid, 3] f32 m/s\", ",
-                "\"box\": \"[n_box, 3] f32 m\", \"box_normals\": \"[n_box, 3] f32, unit, pointing into the box\"}},\n",
-                "  \"bodies\": [{bodies}]\n",
-                "}}\n"
-            ),
-            seed = self.seed,
-            index = s.index,
-            scene_seed = s.seed,
-            scenes = self.scenes,
-            spacing = self.spacing,
-            frame_dt = self.frame_dt,
-            frames = self.frames,
-            box_size = self.box_size,
-            nbodies = self.bodies,
-            body_size = self.body_size,
-            sphere_fraction = self.sphere_fraction,
-            max_speed = self.max_speed,
-            g = self.g,
-            kernel = p.kernel,
-            hdx = p.h_over_dx,
-            alpha = p.alpha,
-            delta = p.delta,
-            cfl = p.cfl,
-            c0 = s.scene.c0(),
-            rho0 = s.scene.rho0,
-            n = s.n_fluid,
-            nbox = s.box_pos.len() / 3,
-            steps = s.steps,
-            bodies = bodies.join(", "),
-        )
+    /// The JSON sidecar of a scene: the configuration (readable back as a [`Liquid3dConfig`]),
+    /// the seeds, the solver's constants and the drawn bodies.
+    fn sidecar_json(&self, s: &LiquidScene3d) -> Result<String> {
+        let v = serde_json::json!({
+            "format": "pbdl liquid3d v1",
+            "seed": self.seed,
+            "scene_index": s.index,
+            "scene_seed": s.seed,
+            "config": self,
+            "solver": "wcsph3d",
+            "c0": s.scene.c0(),
+            "rho0": s.scene.rho0,
+            "n_fluid": s.n_fluid,
+            "n_box": s.box_pos.len() / 3,
+            "steps": s.steps,
+            "arrays": {
+                "pos": "[frames, n_fluid, 3] f32 m",
+                "vel": "[frames, n_fluid, 3] f32 m/s",
+                "box": "[n_box, 3] f32 m",
+                "box_normals": "[n_box, 3] f32, unit, pointing into the box",
+            },
+            "bodies": s.scene.bodies,
+        });
+        serde_json::to_string_pretty(&v).map(|t| t + "\n").map_err(|e| Error::invalid("sidecar", e.to_string()))
     }
 }
 

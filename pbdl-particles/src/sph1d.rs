@@ -682,7 +682,7 @@ impl<T: Real> Sph1d<T> {
     /// The terms this stepper evaluates: `summation_density_grad_h`, `pressure_force`,
     /// `energy_equation`, then `artificial_viscosity` (only when `alpha` or `beta` > 0; named
     /// `artificial_viscosity_signal_velocity` in that [`ViscosityForm`]),
-    /// `viscosity_switch_morris_monaghan` (with that switch and some viscosity),
+    /// `viscosity_switch_morris_monaghan` (with that switch and `alpha > 0`),
     /// `artificial_conductivity` (when `conductivity` > 0) and `fixed_ghosts` or
     /// `moving_buffers` (only when some particles are not mobile; see
     /// [`Sph1d::set_moving_buffers`]).
@@ -693,7 +693,9 @@ impl<T: Real> Sph1d<T> {
                 ViscosityForm::Monaghan1992 => "artificial_viscosity",
                 ViscosityForm::SignalVelocity => "artificial_viscosity_signal_velocity",
             });
-            if matches!(self.params.viscosity_switch, ViscositySwitch::MorrisMonaghan { .. }) {
+            // With alpha = 0 every per-particle alpha is 0 and beta stays constant: no switch acts.
+            if self.params.alpha > 0.0 && matches!(self.params.viscosity_switch, ViscositySwitch::MorrisMonaghan { .. })
+            {
                 ops.push("viscosity_switch_morris_monaghan");
             }
         }

@@ -108,7 +108,7 @@ fn bad_input_gives_typed_errors() {
 /// fallback counts, and the front table against 3D1's band (reported, not asserted here).
 /// `cargo test --release -p pbdl-particles --test dfsph3d_tests -- --ignored --nocapture bar_3d3`
 #[test]
-#[ignore]
+#[ignore = "bar 3D3, compression NOT met (1.184e-3 > 1e-3); leaks met (release, ~35 s)"]
 fn bar_3d3_dam_break_dfsph_compression_leaks_and_front() {
     let scene = DamBreak3d::default();
     let mut sim = scene.build_dfsph(DfsphParams::default_3d()).unwrap();
@@ -201,6 +201,10 @@ fn bar_3d3_dam_break_dfsph_compression_leaks_and_front() {
         devs.join(", ")
     );
     assert_eq!(worst_leaked, 0, "leaked particles, first at T = {first_leak:?}");
+    // `leaked() == 0` cannot fail while the container fallback puts crossing centres back; the
+    // depth they reached can (the round-1 IISPH bar, half a spacing; measured 0.36 dx).
+    let depth = sim.max_penetration() / (scene.dx * scene.a);
+    assert!(depth < 0.5, "deepest wall crossing {depth:.3} dx >= 0.5 dx");
     assert!(comp_t2 <= 1e-3, "mean compression {comp_t2:.4e} > 1e-3");
 }
 
@@ -208,7 +212,7 @@ fn bar_3d3_dam_break_dfsph_compression_leaks_and_front() {
 /// test above; asserted only here (the issue asks 3D DFSPH to be reported against the band).
 /// `cargo test --release -p pbdl-particles --test dfsph3d_tests -- --ignored --nocapture front_band`
 #[test]
-#[ignore]
+#[ignore = "3D1's band for 3D DFSPH, misses: +11.1..+17.7% (release)"]
 fn dfsph3d_front_band_0_to_10_percent() {
     let scene = DamBreak3d::default();
     let mut sim = scene.build_dfsph(DfsphParams::default_3d()).unwrap();

@@ -36,6 +36,22 @@ fn same_seed_gives_bit_identical_files_and_other_seeds_differ() {
     let json = std::fs::read_to_string(a.path().join("scene_0001.json")).unwrap();
     assert!(json.contains("\"seed\": 7,"), "{json}");
     assert!(json.contains(&format!("\"scene_seed\": {},", tiny(7).scene_seed(1))), "{json}");
+    // The sidecar's config reads back as the configuration that wrote it.
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let back: Liquid3dConfig = serde_json::from_value(v["config"].clone()).unwrap();
+    assert_eq!(back, tiny(7));
+    assert!(v["n_fluid"].as_u64().unwrap() > 0 && v["bodies"].as_array().is_some_and(|b| !b.is_empty()));
+}
+
+/// A box that is not a whole number of spacings is refused (the tank is laid out in whole
+/// spacings, so bodies drawn in the box could reach outside it).
+#[test]
+fn box_not_a_multiple_of_the_spacing_is_refused() {
+    let cfg = Liquid3dConfig { spacing: 0.03, box_size: [1.0, 1.0, 1.0], ..tiny(1) };
+    let err = cfg.validate().unwrap_err().to_string();
+    assert!(err.contains("box_size") && err.contains("whole number of spacings"), "{err}");
+    let err = Liquid3dConfig { frames: 2_000_000, ..tiny(1) }.validate().unwrap_err().to_string();
+    assert!(err.contains("frames"), "{err}");
 }
 
 #[test]

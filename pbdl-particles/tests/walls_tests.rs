@@ -91,6 +91,15 @@ fn w2_wcsph_no_particle_leaves_the_tank_to_t10() {
         sim.mean_density_error()
     );
     assert_eq!(worst, 0);
+    assert_crossing_below_half_dx("WCSPH", sim.max_penetration() / sim.physics().dx);
+}
+
+/// `leaked() == 0` alone cannot fail while the impermeable-container fallback
+/// (`walls::enforce_container`) puts every crossing centre back onto the surface, so each W2
+/// test also asserts how deep centres got before the fallback acted: below half a spacing, the
+/// round-1 bar of the IISPH dam break (README), applied to all three solvers.
+fn assert_crossing_below_half_dx(label: &str, depth_in_dx: f64) {
+    assert!(depth_in_dx < 0.5, "{label}: deepest wall crossing {depth_in_dx:.3} dx >= 0.5 dx");
 }
 
 /// Bar W2 for IISPH (defaults, dx = a/20).
@@ -111,6 +120,7 @@ fn w2_iisph_no_particle_leaves_the_tank_to_t10() {
         sim.max_penetration() / sim.dx()
     );
     assert_eq!(worst, 0);
+    assert_crossing_below_half_dx("solver", sim.max_penetration() / sim.dx());
 }
 
 /// Bar W2 for DFSPH (defaults, dx = a/20).
@@ -131,6 +141,7 @@ fn w2_dfsph_no_particle_leaves_the_tank_to_t10() {
         sim.max_penetration() / sim.dx()
     );
     assert_eq!(worst, 0);
+    assert_crossing_below_half_dx("solver", sim.max_penetration() / sim.dx());
 }
 
 /// The same stencil in 3D (`WallStencil<T, 3>`, used by the 3D WCSPH and DFSPH): two fluid
