@@ -61,16 +61,19 @@ fn three_d_plume_scene_rises_and_round_trips() {
 fn what_has_no_3d_form_is_a_typed_error() {
     let e = Scene::from_toml_str(&plume3d("advection = \"central_rk4\"\n"), "x").unwrap().build().unwrap_err();
     assert_eq!(invalid_field(e), "physics.advection");
-    let walls = "[physics.boundaries]\nx_lo = { kind = \"free_slip\" }\nx_hi = { kind = \"no_slip\" }\ny_lo = { kind = \"no_slip\" }\ny_hi = { kind = \"no_slip\" }\n";
+    // Free-slip, periodic and outflow faces have a 3D form now (issue 23, tests/smoke3d_boundaries.rs);
+    // a moving wall does not.
+    let walls = "[physics.boundaries]\nx_lo = { kind = \"moving_wall\", velocity = 1.0 }\nx_hi = { kind = \"no_slip\" }\ny_lo = { kind = \"no_slip\" }\ny_hi = { kind = \"no_slip\" }\n";
     let text = format!("{}\n{walls}", plume3d(""));
     let e = Scene::from_toml_str(&text, "x").unwrap().build().unwrap_err();
-    assert_eq!(invalid_field(e), "physics.boundaries");
+    assert_eq!(invalid_field(e), "physics.boundaries.x_lo");
     // Conservative density transport has a 3D form now (grid3d::conservative); it builds.
     let sim = Scene::from_toml_str(&plume3d("density_advection = \"conservative\"\n"), "x").unwrap().build().unwrap();
     assert!(sim.operators().iter().any(|o| o.contains("conservative")), "{:?}", sim.operators());
     let obstacle = format!("{}\n[[obstacles]]\nkind = \"circle\"\ncenter = [0.5, 0.8]\nradius = 0.1\n", plume3d(""));
-    let e = Scene::from_toml_str(&obstacle, "x").unwrap().build().unwrap_err();
-    assert_eq!(invalid_field(e), "obstacles");
+    // A 2D obstacle is extruded through the depth in 3D (issue 23): it builds.
+    let sim = Scene::from_toml_str(&obstacle, "x").unwrap().build().unwrap();
+    assert!(sim.operators().contains(&"grid3d.obstacles"), "{:?}", sim.operators());
 }
 
 #[test]

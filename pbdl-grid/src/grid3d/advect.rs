@@ -14,6 +14,10 @@
 //! * a velocity component along another axis: the no-slip ghost `-q_inner` (the component is 0 on
 //!   the wall, as in [`super::walls`]); departure points are clamped to the walls.
 //!
+//! Other faces ([`super::Walls3d`], through [`super::Smoke3d::with_boundaries`]): a free-slip
+//! face mirrors the tangential ghost (`+q_inner`), a periodic pair wraps every lattice, an
+//! outflow face clamps departure points to its stored face (zero gradient beyond it).
+//!
 //! The stored wall faces of an advected velocity are 0 on output, whatever they held on input.
 //! Semi-Lagrangian is unconditionally stable (a convex combination of old values, up to the sign
 //! of the no-slip ghosts), first order and diffusive.
@@ -34,6 +38,7 @@
 
 use super::field::{check_values, MacField3d};
 use super::momentum::check_shape;
+use super::walls::Walls3d;
 use super::Grid3d;
 use crate::pad::{accumulate_rows, for_rows, parallel_cells};
 use crate::{Error, Result};
@@ -133,8 +138,15 @@ enum Axis {
     Centre,
     /// Faces normal to the axis `(m + 1) h`, `m = -1..n-1`; the two walls (`m = -1`, `n - 1`) are 0.
     Normal,
-    /// Velocity along another axis at `(m + 1/2) h`; no-slip ghosts `-q` at `m = -1` and `m = n`.
-    Tangential,
+    /// Velocity along another axis at `(m + 1/2) h`; ghosts at `m = -1` and `m = n`: `-q` for a
+    /// no-slip face, `+q` where the flag (`[lo, hi]`) is set (free-slip or open face).
+    Tangential([bool; 2]),
+    /// Faces normal to the axis, open at the upper face: as `Normal`, but the stored face at
+    /// `n - 1` is free and the ghost beyond it repeats it (zero gradient).
+    NormalOpen,
+    /// A periodic axis with samples at `(m + offset) h` (0.5: centres and tangential
+    /// components, 1: faces normal to it), wrapped.
+    Periodic(bool),
 }
 
 impl Axis {
@@ -142,16 +154,28 @@ impl Axis {
     #[inline(always)]
     fn offset(self) -> f64 {
         match self {
-            Self::Normal => 1.0,
+            Self::Normal | Self::NormalOpen | Self::Periodic(true) => 1.0,
             _ => 0.5,
         }
     }
 }
 
-/// The lattice of velocity component `c` (axis-indexed `[x, y, z]`).
+/// The lattice of velocity component `c` (axis-indexed `[x, y, z]`) in a box with `walls`.
 #[inline(always)]
-fn velocity_lattice(c: usize) -> [Axis; 3] {
-    [0, 1, 2].map(|a| if a == c { Axis::Normal } else { Axis::Tangential })
+fn velocity_lattice(c: usize, walls: &Walls3d) -> [Axis; 3] {
+    [0, 1, 2].map(|a| {
+        if walls.periodic(a) {
+            Axis::Periodic(a == c)
+        } else if a == c {
+            if walls.open_hi(a) {
+                Axis::NormalOpen
+            } else {
+                Axis::Normal
+            }
+        } else {
+            Axis::Tangential([walls.free_slip(a, false), walls.free_slip(a, true) || walls.open_hi(a)])
+        }
+    })
 }
 
 /// The two interpolation nodes along one axis: stored indices, coefficients (1, 0 for a wall,
@@ -194,14 +218,30 @@ fn axis_foot(ax: Axis, x: f64, n: usize) -> AxisFoot {
             let (a, b) = (node(i0), node(i0 + 1));
             AxisFoot { idx: [a.0, b.0], coef: [a.1, b.1], t: s - i0 as f64, slope }
         }
-        Axis::Tangential => {
+        Axis::NormalOpen => {
+            // Departure points are clamped to the last stored face: zero gradient beyond it.
+            let (s, slope) = clamp_pos(x - 1.0, -1.0, nf - 1.0);
+            let i0 = (s.floor() as isize).clamp(-1, ni - 2);
+            let node = |m: isize| if m < 0 { (0, 0.0) } else { (m as usize, 1.0) };
+            let (a, b) = (node(i0), node(i0 + 1));
+            AxisFoot { idx: [a.0, b.0], coef: [a.1, b.1], t: s - i0 as f64, slope }
+        }
+        Axis::Periodic(face) => {
+            let s = x - if face { 1.0 } else { 0.5 };
+            let f = s.floor();
+            let i0 = f as isize;
+            let wrap = |m: isize| m.rem_euclid(ni) as usize;
+            AxisFoot { idx: [wrap(i0), wrap(i0 + 1)], coef: [1.0, 1.0], t: s - f, slope: 1.0 }
+        }
+        Axis::Tangential(free) => {
             let (s, slope) = clamp_pos(x - 0.5, -0.5, nf - 0.5);
             let i0 = (s.floor() as isize).clamp(-1, ni - 1);
+            let sign = |f: bool| if f { 1.0 } else { -1.0 };
             let node = |m: isize| {
                 if m < 0 {
-                    (0, -1.0)
+                    (0, sign(free[0]))
                 } else if m >= ni {
-                    (n - 1, -1.0)
+                    (n - 1, sign(free[1]))
                 } else {
                     (m as usize, 1.0)
                 }
@@ -291,6 +331,8 @@ pub(crate) struct Sl3d {
     /// `q` is a MAC velocity (3 channels on the face lattices) rather than cell-centred.
     pub velocity: bool,
     pub dt: f64,
+    /// The faces of the box (ghost rules of every lattice).
+    pub walls: Walls3d,
 }
 
 impl Sl3d {
@@ -312,7 +354,12 @@ impl Sl3d {
                 reason: format!("dtype {:?} differs from the advected field's {:?}", u.values().dtype(), q.dtype()),
             });
         }
-        Ok(Self { grid, velocity, dt })
+        Ok(Self { grid, velocity, dt, walls: Walls3d::closed() })
+    }
+
+    /// The same step in a box with per-face conditions `walls`.
+    pub(crate) fn with_walls(self, walls: Walls3d) -> Self {
+        Self { walls, ..self }
     }
 
     pub(crate) fn scalar(q: &Tensor, u: &MacField3d, dt: f64) -> Result<Self> {
@@ -359,9 +406,9 @@ impl Sl3d {
     /// The lattice of channel `ch`.
     fn lattice(&self, ch: usize) -> [Axis; 3] {
         if self.velocity {
-            velocity_lattice(ch)
+            velocity_lattice(ch, &self.walls)
         } else {
-            [Axis::Centre; 3]
+            [0, 1, 2].map(|a| if self.walls.periodic(a) { Axis::Periodic(false) } else { Axis::Centre })
         }
     }
 
@@ -391,7 +438,7 @@ impl Sl3d {
     /// Whether sample `(i, j, k)` of channel `ch` is a stored wall face (kept at 0).
     #[inline(always)]
     fn is_wall(&self, ch: usize, p: [usize; 3]) -> bool {
-        self.velocity && p[ch] == self.n()[ch] - 1
+        self.velocity && p[ch] == self.n()[ch] - 1 && !self.walls.periodic(ch) && !self.walls.open_hi(ch)
     }
 
     /// The sample position (in cells) of `(i, j, k)` on lattice `lat`.
@@ -598,7 +645,7 @@ impl Kernel1 for SampleVel3d {
                             if sl.is_wall(ch, p) {
                                 continue;
                             }
-                            let f = Foot::new(velocity_lattice(e), Sl3d::sample_pos(lat, p), n);
+                            let f = Foot::new(velocity_lattice(e, &sl.walls), Sl3d::sample_pos(lat, p), n);
                             *o = T::c(f.dot(&f.weights(), ve));
                         }
                     });
@@ -642,7 +689,7 @@ impl Kernel1 for SampleVel3dAdjoint {
                             if a == T::zero() || sl.is_wall(ch, p) {
                                 continue;
                             }
-                            let f = Foot::new(velocity_lattice(e), Sl3d::sample_pos(lat, p), n);
+                            let f = Foot::new(velocity_lattice(e, &sl.walls), Sl3d::sample_pos(lat, p), n);
                             f.scatter(&f.weights(), a.wide(), acc);
                         }
                     });

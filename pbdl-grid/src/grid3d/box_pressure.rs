@@ -6,6 +6,10 @@
 //! faces `D = -G^T`, so `P` is symmetric: its backward is one more projection of the cotangent,
 //! i.e. one adjoint solve with the same (symmetric) matrix, never unrolled iterations.
 //!
+//! [`BoxTopology`] generalises the box: periodic pairs, outflow faces (Dirichlet `p = 0`), solid
+//! cells (left out: Neumann on their faces) and fixed inflow faces; the sparse Cholesky factor
+//! assembles those ([`CholeskyBox3d::with_topology`]), CG keeps the closed box.
+//!
 //! Which solver is the default ([`BoxPressure::default`]) was decided by measurement
 //! (`benches/pressure3d.rs`, one projection of a walled box at 32^3 and 64^3, CG at relative
 //! tolerance 1e-6): see [`BoxPressure`] for the numbers.
@@ -14,8 +18,8 @@ use super::cg::CgBox3d;
 use super::cholesky::CholeskyBox3d;
 use super::field::MacField3d;
 use super::momentum::check_shape;
-use super::walls::{unit, WallGeom};
-use super::{CavityWalls, Grid3d};
+use super::walls::{unit, WallGeom, Walls3d};
+use super::Grid3d;
 use crate::pressure::CgSettings;
 use crate::{Error, Result};
 use candle_core::{Shape, Tensor};
@@ -75,6 +79,97 @@ impl BoxPressure {
             Self::Cg(s) => BoxSolver::Cg(CgBox3d::new(grid, *s)?),
         })
     }
+
+    /// Builds the solver for `grid` and `topology`. The closed box (no-slip or free-slip walls:
+    /// the same matrix) is [`Self::build`]; periodic pairs, open faces and solid cells change
+    /// the matrix, which only the Cholesky factor assembles so far: CG (asked for, or `Auto`
+    /// above 32^3) is then an [`Error::Invalid`] naming `pressure`.
+    pub fn build_for(&self, grid: Grid3d, topology: &BoxTopology) -> Result<BoxSolver> {
+        topology.validate(&grid)?;
+        if topology.is_plain() {
+            // Free-slip walls change the velocity's ghosts, not the projection.
+            return self.build(grid);
+        }
+        match self {
+            Self::Cg(_) => Err(Error::Invalid {
+                field: "pressure",
+                reason: "periodic, open (outflow) faces and obstacles are assembled by the sparse Cholesky factor \
+                         only; use BoxPressure::Cholesky or Auto"
+                    .into(),
+            }),
+            Self::Auto if grid.cells() > AUTO_CHOLESKY_CELLS => Err(Error::Invalid {
+                field: "pressure",
+                reason: format!(
+                    "periodic, open (outflow) faces and obstacles are assembled by the sparse Cholesky factor only, \
+                     which Auto uses up to {AUTO_CHOLESKY_CELLS} cells ({} here); ask for BoxPressure::Cholesky \
+                     explicitly or use a smaller grid",
+                    grid.cells()
+                ),
+            }),
+            _ => Ok(BoxSolver::Cholesky(CholeskyBox3d::with_topology(grid, topology.clone())?)),
+        }
+    }
+}
+
+/// What the walled projection sees of the box: the per-face conditions (periodic pairs wrap,
+/// [`super::walls::Face3d::Outflow`] faces are Dirichlet `p = 0`, every other face a wall) and
+/// the solid cells (left out of the solve; every velocity face touching one is 0).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BoxTopology {
+    /// Per-face conditions.
+    pub faces: Walls3d,
+    /// Solid cells, one flag per cell (flat `(k ny + j) nx + i`); `None`: none.
+    pub solid: Option<Arc<Vec<bool>>>,
+    /// Faces held at a given velocity (flat index `c n + m` of the stored component, value):
+    /// an inflow patch's faces, each between a solid (inflow) cell and a fluid one. They are
+    /// blocked (no pressure correction) and written after the blocked faces are zeroed, so the
+    /// fluid cell next to one sees the inflow in its divergence. `None`: none.
+    pub fixed: Option<Arc<Vec<(usize, f64)>>>,
+}
+
+impl BoxTopology {
+    /// Whether the matrix is the closed box's (no periodic pair, no open face, no solid).
+    pub fn is_plain(&self) -> bool {
+        self.solid.is_none()
+            && self.fixed.is_none()
+            && (0..3).all(|a| !self.faces.periodic(a) && !self.faces.open_hi(a))
+    }
+
+    /// Whether cell `m` takes part in the solve.
+    #[inline(always)]
+    pub fn fluid(&self, m: usize) -> bool {
+        self.solid.as_ref().is_none_or(|s| !s[m])
+    }
+
+    /// Checks the faces against `grid` and the solid mask's length; at least one fluid cell.
+    pub fn validate(&self, grid: &Grid3d) -> Result<()> {
+        self.faces.validate(grid)?;
+        if let Some(s) = &self.solid {
+            if s.len() != grid.cells() {
+                return Err(Error::Invalid {
+                    field: "obstacles",
+                    reason: format!("solid mask of {} cells on a grid of {}", s.len(), grid.cells()),
+                });
+            }
+            if s.iter().all(|&x| x) {
+                return Err(Error::Invalid { field: "obstacles", reason: "every cell is solid".into() });
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether velocity component `c` at stored face `m` is held at 0: a wall face, or a face
+    /// of a solid cell (either of the two cells it separates).
+    #[inline(always)]
+    pub(crate) fn blocked(&self, geo: &WallGeom, c: usize, m: usize) -> bool {
+        if geo.is_wall_face(c, geo.pos(m)) {
+            return true;
+        }
+        match &self.solid {
+            None => false,
+            Some(s) => s[m] || geo.neighbour(m, c, true).is_some_and(|up| s[up]),
+        }
+    }
 }
 
 /// A built closed-box pressure solver; cheap to clone (shared).
@@ -92,6 +187,14 @@ impl BoxSolver {
         match self {
             Self::Cholesky(c) => c.grid(),
             Self::Cg(c) => c.grid(),
+        }
+    }
+
+    /// The topology it was built for (CG: the closed box).
+    pub fn topology(&self) -> BoxTopology {
+        match self {
+            Self::Cholesky(c) => c.topology().clone(),
+            Self::Cg(_) => BoxTopology::default(),
         }
     }
 
@@ -135,23 +238,50 @@ pub(crate) fn project_box_slice<S>(grid: &Grid3d, u: &mut [f64], p: &mut [f64], 
 where
     S: FnOnce(&mut [f64], &mut [f64]) -> Result<()>,
 {
-    let geo = WallGeom::new(grid, &CavityWalls { lid_velocity: 0.0 });
+    project_topology_slice(grid, &BoxTopology::default(), u, p, false, solve)
+}
+
+/// [`project_box_slice`] on a [`BoxTopology`]: blocked faces (walls, faces of solid cells) to
+/// 0, the fixed faces to their values (to 0 when `homogeneous`: the linear part, for the
+/// backward), `b = -D u` over the fluid cells (solid cells get 0), the solve, then `u -= G p`
+/// on the free faces, with `p = 0` beyond an open face.
+pub(crate) fn project_topology_slice<S>(
+    grid: &Grid3d,
+    topo: &BoxTopology,
+    u: &mut [f64],
+    p: &mut [f64],
+    homogeneous: bool,
+    solve: S,
+) -> Result<()>
+where
+    S: FnOnce(&mut [f64], &mut [f64]) -> Result<()>,
+{
+    let geo = WallGeom::with_faces(grid, topo.faces);
     let n = geo.cells();
-    let st = [1, grid.nx, grid.nx * grid.ny];
     let ih = grid.spacing().map(|h| 1.0 / h);
     for c in 0..3 {
         for m in 0..n {
-            if geo.is_wall_face(c, geo.pos(m)) {
+            if topo.blocked(&geo, c, m) {
                 u[c * n + m] = 0.0;
             }
         }
     }
+    if let (Some(fixed), false) = (&topo.fixed, homogeneous) {
+        for &(f, v) in fixed.iter() {
+            u[f] = v;
+        }
+    }
     let mut b = vec![0.0; n];
     for (m, bm) in b.iter_mut().enumerate() {
-        let pos = geo.pos(m);
+        if !topo.fluid(m) {
+            continue;
+        }
         let mut div = 0.0;
         for a in 0..3 {
-            let back = if pos[a] > 0 { u[a * n + m - st[a]] } else { 0.0 };
+            let back = match geo.neighbour(m, a, false) {
+                Some(lo) => u[a * n + lo],
+                None => 0.0,
+            };
             div += (u[a * n + m] - back) * ih[a];
         }
         *bm = -div;
@@ -160,12 +290,17 @@ where
     for a in 0..3 {
         let e = unit(a);
         for m in 0..n {
-            let pos = geo.pos(m);
-            if !geo.is_wall_face(a, pos) {
-                let up = m + st[a];
-                debug_assert_eq!(geo.pos(up)[a], pos[a] + e[a]);
-                u[a * n + m] -= (p[up] - p[m]) * ih[a];
+            if topo.blocked(&geo, a, m) {
+                continue;
             }
+            let pu = match geo.neighbour(m, a, true) {
+                Some(up) => {
+                    debug_assert!(topo.faces.periodic(a) || geo.pos(up)[a] == geo.pos(m)[a] + e[a]);
+                    p[up]
+                }
+                None => 0.0, // an open face: the ghost pressure is 0
+            };
+            u[a * n + m] -= (pu - p[m]) * ih[a];
         }
     }
     Ok(())
@@ -176,7 +311,7 @@ where
 /// is the same projection of the cotangent (one adjoint solve). CG non-convergence is an error.
 pub fn make_incompressible_box(u: &MacField3d, solver: &BoxSolver) -> Result<MacField3d> {
     solver.check(u.grid())?;
-    let op = WallProjection { solver: solver.clone() };
+    let op = WallProjection { solver: solver.clone(), homogeneous: false };
     Ok(MacField3d::from_parts(op.apply(u.values())?, *u.grid()))
 }
 
@@ -184,6 +319,9 @@ pub fn make_incompressible_box(u: &MacField3d, solver: &BoxSolver) -> Result<Mac
 #[derive(Clone)]
 pub(crate) struct WallProjection {
     pub solver: BoxSolver,
+    /// Fixed (inflow) faces written as 0 instead of their values: the linear part of the affine
+    /// projection, which is its backward.
+    pub homogeneous: bool,
 }
 
 impl WallProjection {
@@ -203,13 +341,14 @@ impl WallProjection {
         mut pressure: impl FnMut(usize, &mut [f64], &mut [f64]) -> Result<()>,
     ) -> Result<()> {
         let grid = *self.solver.grid();
+        let topo = self.solver.topology();
         let n = grid.cells();
         let (mut w, mut p) = (vec![0.0f64; 3 * n], vec![0.0f64; n]);
         for (b, (xb, ob)) in x.chunks(3 * n).zip(out.chunks_mut(3 * n)).enumerate() {
             for (a, &v) in w.iter_mut().zip(xb) {
                 *a = <T as candle_core::WithDType>::to_f64(v);
             }
-            project_box_slice(&grid, &mut w, &mut p, |rhs, p| pressure(b, rhs, p))?;
+            project_topology_slice(&grid, &topo, &mut w, &mut p, self.homogeneous, |rhs, p| pressure(b, rhs, p))?;
             for (o, &a) in ob.iter_mut().zip(&w) {
                 *o = T::c(a);
             }
@@ -259,7 +398,8 @@ impl Kernel1 for WallProjection {
 
 impl Op1 for WallProjection {
     fn backward(&self, _x: &Tensor, _y: &Tensor, gy: &Tensor) -> candle_core::Result<Tensor> {
-        // Symmetric on the interior faces, zero on the wall faces in and out: P^T = P.
-        self.apply(gy)
+        // Symmetric on the interior faces, zero on the wall faces in and out: P^T = P (with
+        // fixed inflow faces P is affine; its linear part writes them as 0).
+        WallProjection { solver: self.solver.clone(), homogeneous: true }.apply(gy)
     }
 }

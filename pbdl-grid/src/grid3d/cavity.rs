@@ -49,8 +49,8 @@ impl Cavity3d {
         walls.validate()?;
         let tableau = config.tableau()?;
         check_time_step(&grid, [walls.lid_velocity.abs(), 0.0, 0.0], config.nu, &tableau, config.dt)?;
-        let projection = WallProjection { solver: pressure.into().build(grid)? };
-        let rhs = WallMomentumRhs { grid, walls, advect: true, nu: config.nu };
+        let projection = WallProjection { solver: pressure.into().build(grid)?, homogeneous: false };
+        let rhs = WallMomentumRhs { grid, walls, advect: true, nu: config.nu, faces: Default::default() };
         let operators = config.operators(
             "grid3d.advect.flux_form_walls",
             "grid3d.diffuse.explicit",

@@ -78,6 +78,10 @@ pub enum AxisFaces3d {
     Wall,
     /// Periodic: the face at `l` is the face at `0`.
     Periodic,
+    /// A wall at `0` and an open face at `l` (outflow): the stored last face's velocity carries
+    /// the first-order upwind flux with the nearest cell as the outside value (zero gradient), no
+    /// high-order correction there. What leaves is counted by [`Conservative3d::step_counting`].
+    OpenHi,
 }
 
 /// A conservative, bounded transport of cell-centred scalars (see the [module docs](self)).
@@ -118,6 +122,33 @@ impl Conservative3d {
     pub fn step(&self, q: &Tensor, velocity: &MacField3d, dt: f64) -> Result<Tensor> {
         let op = Fct3d::new(*self, q, velocity, dt)?;
         Ok(apply2(q, velocity.values(), op)?)
+    }
+
+    /// [`Self::step`] that also returns, per batch item and channel (`[b][c]`), the amount
+    /// `sum q dx dy dz` that left through the open faces ([`AxisFaces3d::OpenHi`]; negative when
+    /// it came in), summed over the sub-steps exactly as the fluxes moved it: `sum(q_new) dV =
+    /// sum(q) dV - outflow` to round-off. Forward only.
+    pub fn step_counting(&self, q: &Tensor, velocity: &MacField3d, dt: f64) -> Result<(Tensor, Vec<Vec<f64>>)> {
+        let op = Fct3d::new(*self, q, velocity, dt)?;
+        let (shape, dtype) = (q.shape().clone(), q.dtype());
+        let v = velocity.values();
+        Ok(match dtype {
+            candle_core::DType::F32 => {
+                let (qv, vv) = (q.flatten_all()?.to_vec1::<f32>()?, v.flatten_all()?.to_vec1::<f32>()?);
+                let mut out = vec![0f32; qv.len()];
+                let flux = op.run(&qv, &shape, &vv, &mut out)?;
+                (Tensor::from_vec(out, shape, q.device())?, flux)
+            }
+            _ => {
+                let (qv, vv) = (
+                    q.to_dtype(candle_core::DType::F64)?.flatten_all()?.to_vec1::<f64>()?,
+                    v.to_dtype(candle_core::DType::F64)?.flatten_all()?.to_vec1::<f64>()?,
+                );
+                let mut out = vec![0f64; qv.len()];
+                let flux = op.run(&qv, &shape, &vv, &mut out)?;
+                (Tensor::from_vec(out, shape, q.device())?.to_dtype(dtype)?, flux)
+            }
+        })
     }
 
     /// The largest outflow CFL number of `velocity` over `dt` (the sub-step count is its ceiling,
@@ -222,6 +253,10 @@ impl Fct3d {
         self.cfg.faces[axis] == AxisFaces3d::Periodic
     }
 
+    fn open(&self, axis: usize) -> bool {
+        self.cfg.faces[axis] == AxisFaces3d::OpenHi
+    }
+
     fn face_buffers<T: Real>(&self) -> (Vec<T>, Vec<T>, Vec<T>) {
         let d = Dims::of(&self.grid);
         (vec![T::zero(); d.sx() * d.nz], vec![T::zero(); d.sy() * d.nz], vec![T::zero(); d.nxy * (d.nz + 1)])
@@ -236,10 +271,11 @@ impl Fct3d {
         let (u, v, w) = (&vel[..n], &vel[n..2 * n], &vel[2 * n..3 * n]);
         let zero = T::zero();
         let per = [self.periodic(0), self.periodic(1), self.periodic(2)];
+        let open = [self.open(0), self.open(1), self.open(2)];
         for r in 0..ny * nz {
             for f in 0..=nx {
                 uf[r * (nx + 1) + f] = if f == 0 || f == nx {
-                    if per[0] {
+                    if per[0] || (f == nx && open[0]) {
                         u[r * nx + nx - 1]
                     } else {
                         zero
@@ -251,7 +287,8 @@ impl Fct3d {
         }
         for k in 0..nz {
             for f in 0..=ny {
-                let src = if f == 0 || f == ny { per[1].then_some(ny - 1) } else { Some(f - 1) };
+                let src =
+                    if f == 0 || f == ny { (per[1] || (f == ny && open[1])).then_some(ny - 1) } else { Some(f - 1) };
                 let dst = &mut vf[(k * (ny + 1) + f) * nx..(k * (ny + 1) + f + 1) * nx];
                 match src {
                     Some(s) => dst.copy_from_slice(&v[(k * ny + s) * nx..(k * ny + s + 1) * nx]),
@@ -260,7 +297,7 @@ impl Fct3d {
             }
         }
         for f in 0..=nz {
-            let src = if f == 0 || f == nz { per[2].then_some(nz - 1) } else { Some(f - 1) };
+            let src = if f == 0 || f == nz { (per[2] || (f == nz && open[2])).then_some(nz - 1) } else { Some(f - 1) };
             let dst = &mut wf[f * d.nxy..(f + 1) * d.nxy];
             match src {
                 Some(s) => dst.copy_from_slice(&w[s * d.nxy..(s + 1) * d.nxy]),
@@ -339,12 +376,13 @@ impl Fct3d {
         q: &[T],
         out: &mut [T],
         par: bool,
-    ) {
+    ) -> f64 {
         let d = Dims::of(&self.grid);
         let (nx, ny, nz, nxy, py, pz) = (d.nx, d.ny, d.nz, d.nxy, d.py, d.pz);
         let (sx, sy) = (d.sx(), d.sy());
         let (h, qu, zero, one) = (T::c(0.5), T::c(0.25), T::zero(), T::one());
         let per = [self.periodic(0), self.periodic(1), self.periodic(2)];
+        let open = [self.open(0), self.open(1), self.open(2)];
         self.pad(q, &mut wk.qp, par);
         let qp = &*wk.qp;
         // x faces: slab k holds [F_L | A] of its ny (nx + 1) faces; face f at x = f dx between
@@ -354,13 +392,19 @@ impl Fct3d {
             for j in 0..ny {
                 for f in 0..=nx {
                     let e = j * (nx + 1) + f;
+                    let u = uf[(k * ny + j) * (nx + 1) + f];
+                    let pl = d.p(f, j + 1, k + 1);
+                    if f == nx && open[0] {
+                        // Open face: upwind only, the ghost repeats the last cell.
+                        fl[e] = cx * (pos(u) * qp[pl] + neg(u) * qp[pl + 1]);
+                        a[e] = zero;
+                        continue;
+                    }
                     if (f == 0 || f == nx) && !per[0] {
                         fl[e] = zero;
                         a[e] = zero;
                         continue;
                     }
-                    let u = uf[(k * ny + j) * (nx + 1) + f];
-                    let pl = d.p(f, j + 1, k + 1);
                     let (ql, qr) = (qp[pl], qp[pl + 1]);
                     let low = cx * (pos(u) * ql + neg(u) * qr);
                     fl[e] = low;
@@ -380,7 +424,8 @@ impl Fct3d {
         for_rows(&mut wk.fy, 2 * sy, par, |k, slab| {
             let (fl, a) = slab.split_at_mut(sy);
             for f in 0..=ny {
-                let wall = (f == 0 || f == ny) && !per[1];
+                let opened = f == ny && open[1];
+                let wall = (f == 0 || f == ny) && !per[1] && !opened;
                 let (b, t) = ((f + ny - 1) % ny, f % ny);
                 for i in 0..nx {
                     let e = f * nx + i;
@@ -394,6 +439,10 @@ impl Fct3d {
                     let (qb, qt) = (qp[pb], qp[pb + py]);
                     let low = cy * (pos(v) * qb + neg(v) * qt);
                     fl[e] = low;
+                    if opened {
+                        a[e] = zero;
+                        continue;
+                    }
                     let ur = |jj: usize| (k * ny + jj) * (nx + 1) + i;
                     let ub = qu * (uf[ur(b)] + uf[ur(b) + 1] + uf[ur(t)] + uf[ur(t) + 1]);
                     let wr = |kk: usize, jj: usize| (kk * ny + jj) * nx + i;
@@ -408,6 +457,15 @@ impl Fct3d {
         // z faces: layer f (z = f dz) holds [F_L | A] of its nx ny faces.
         for_rows(&mut wk.fz, 2 * nxy, par, |f, layer| {
             let (fl, a) = layer.split_at_mut(nxy);
+            if f == nz && open[2] {
+                for (e, (fl, a)) in fl.iter_mut().zip(a.iter_mut()).enumerate() {
+                    let w = wf[f * nxy + e];
+                    let pd = d.p(e % nx + 1, e / nx + 1, f);
+                    *fl = cz * (pos(w) * qp[pd] + neg(w) * qp[pd + pz]);
+                    *a = zero;
+                }
+                return;
+            }
             if (f == 0 || f == nz) && !per[2] {
                 fl.fill(zero);
                 a.fill(zero);
@@ -505,7 +563,7 @@ impl Fct3d {
                     for f in 0..=nx {
                         let e = j * (nx + 1) + f;
                         if (f == 0 || f == nx) && !per[0] {
-                            continue;
+                            continue; // walls and the open face carry no correction
                         }
                         a[e] = limit(a[e], (k, j * nx + (f + nx - 1) % nx), (k, j * nx + f % nx));
                     }
@@ -549,6 +607,26 @@ impl Fct3d {
                 }
             }
         });
+        // What left through the open faces (their F_L; A is 0 there), in units of q.
+        let mut outflow = 0.0;
+        if open[0] {
+            for k in 0..nz {
+                for j in 0..ny {
+                    outflow += fx[2 * sx * k + j * (nx + 1) + nx].wide();
+                }
+            }
+        }
+        if open[1] {
+            for k in 0..nz {
+                for i in 0..nx {
+                    outflow += fy[2 * sy * k + ny * nx + i].wide();
+                }
+            }
+        }
+        if open[2] {
+            outflow += fz[2 * nxy * nz..2 * nxy * nz + nxy].iter().map(|v| v.wide()).sum::<f64>();
+        }
+        outflow
     }
 
     fn check_shapes(&self, q: &Shape, v: &Shape) -> candle_core::Result<()> {
@@ -603,7 +681,16 @@ impl Kernel2 for Fct3d {
         Ok(a.clone())
     }
     fn forward<T: Real>(&self, q: &[T], qs: &Shape, v: &[T], _vs: &Shape, out: &mut [T]) -> candle_core::Result<()> {
+        self.run(q, qs, v, out).map(|_| ())
+    }
+}
+
+impl Fct3d {
+    /// The forward pass; returns the outflow per batch item and channel (`sum q dV`).
+    fn run<T: Real>(&self, q: &[T], qs: &Shape, v: &[T], out: &mut [T]) -> candle_core::Result<Vec<Vec<f64>>> {
         let chans = qs.dims()[1];
+        let vol = self.grid.spacing().iter().product::<f64>();
+        let mut flux = Vec::new();
         let n = self.grid.cells();
         let par = parallel_cells(n);
         let [dx, dy, dz] = self.grid.spacing();
@@ -623,17 +710,21 @@ impl Kernel2 for Fct3d {
             }
             let s = self.dt / k;
             let c = (T::c(s / dx), T::c(s / dy), T::c(s / dz));
+            let mut per_channel = Vec::with_capacity(chans);
             for ch in 0..chans {
                 let off = (b * chans + ch) * n;
                 let o = &mut out[off..off + n];
                 o.copy_from_slice(&q[off..off + n]);
+                let mut left = 0.0;
                 for _ in 0..k as usize {
                     scratch.copy_from_slice(o);
-                    self.substep(&mut wk, (&uf, &vf, &wf), c, &scratch, o, par);
+                    left += self.substep(&mut wk, (&uf, &vf, &wf), c, &scratch, o, par);
                 }
+                per_channel.push(left * vol);
             }
+            flux.push(per_channel);
         }
-        Ok(())
+        Ok(flux)
     }
 }
 

@@ -24,8 +24,12 @@
 //! ([`Cavity3d`]) keeps the last face of each component along its own axis as a wall face.
 //! Time schemes are the 2D ones ([`crate::ButcherTableau`]).
 //!
-//! Not here yet: other wall layouts (inflow/outflow, free slip), obstacles, the adjoint of the
-//! conservative scalar transport, a fused stage update for the cavity, and a warm start of CG
+//! The smoke box takes per-face walls ([`Walls3d`]: no-slip, free-slip, periodic pairs,
+//! outflow on upper faces), static obstacles and an inflow patch ([`Smoke3dBoundaries`]).
+//!
+//! Not here yet: moving walls other than the cavity's lid, CG for periodic / open / obstacle
+//! topologies (the sparse Cholesky factor assembles them), the adjoint of the conservative scalar
+//! transport, a fused stage update for the cavity, and a warm start of CG
 //! across time steps inside the steppers.
 //!
 //! ```
@@ -58,7 +62,7 @@ pub mod stability;
 pub mod walls;
 
 pub use advect::Advection3d;
-pub use box_pressure::{BoxPressure, BoxSolver};
+pub use box_pressure::{BoxPressure, BoxSolver, BoxTopology};
 pub use cavity::Cavity3d;
 pub use cg::CgBox3d;
 pub use cholesky::CholeskyBox3d;
@@ -67,5 +71,8 @@ pub use domain::Grid3d;
 pub use field::MacField3d;
 pub use navier_stokes::{NavierStokes3d, NavierStokes3dConfig};
 pub use pressure::PoissonFft3d;
-pub use smoke::{Smoke3d, Smoke3dConfig, Smoke3dState, SphereSource, Viscosity3d};
-pub use walls::CavityWalls;
+pub use smoke::{
+    InflowFace3d, InflowPatch3d, MassBalance3d, Obstacle3d, PatchShape3d, Smoke3d, Smoke3dBoundaries, Smoke3dConfig,
+    Smoke3dState, SphereSource, Viscosity3d,
+};
+pub use walls::{CavityWalls, Face3d, Walls3d};

@@ -305,6 +305,20 @@ pub enum Physics {
         /// forward only).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         density_advection: Option<Advection>,
+        /// 3D only (`grid.nz > 1`): the faces `z = 0` and `z = lz`, with the values of
+        /// `boundaries` (`no_slip`, `free_slip`, `periodic`, `outflow` on `z_hi`). Default: no-slip.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        boundaries_z: Option<BoundariesZ>,
+        /// 3D only: solid spheres and boxes (`kind = "sphere"`, `center = [x, y, z]`, `radius`;
+        /// `kind = "box"`, `lower`, `upper` as `[x, y, z]`). The top-level 2D `obstacles` (circles,
+        /// boxes) are extruded through the whole depth in 3D.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        obstacles3d: Vec<crate::grid3d::Obstacle3d>,
+        /// 3D only: an inflow patch on a lower face (`face = "y_lo"`, `shape = { kind = "disc",
+        /// center = [x, z], radius }` or `{ kind = "rect", lower, upper }` in the face's two other
+        /// coordinates, `velocity` into the box, `density`); needs an `outflow` face.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        inflow_patch: Option<crate::grid3d::InflowPatch3d>,
     },
     /// Flow past obstacles (the Karman street behind a cylinder); obstacles from `obstacles`.
     /// Uniform inflow at `x = 0`, zero-gradient outflow at `x = lx`, free-slip walls at
@@ -363,6 +377,17 @@ fn is_default<T: Default + PartialEq>(t: &T) -> bool {
 
 fn closed_box() -> Boundaries {
     Boundaries { x_lo: Bc::NoSlip, x_hi: Bc::NoSlip, y_lo: Bc::NoSlip, y_hi: Bc::NoSlip }
+}
+
+/// The two z faces of a 3D smoke scene (`physics.boundaries_z`), with the values of the x and y
+/// faces in `physics.boundaries`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoundariesZ {
+    /// Face `z = 0`.
+    pub z_lo: Bc,
+    /// Face `z = lz`.
+    pub z_hi: Bc,
 }
 
 /// A body force on the velocity.
@@ -463,6 +488,7 @@ pub const BUILTIN: &[(&str, &str)] = builtin!(
     "kolmogorov",
     "smoke_plume",
     "cylinder",
+    "smoke3d_obstacle",
 );
 
 /// Names of the built-in scenes.
@@ -649,9 +675,41 @@ impl Scene {
                     nonneg("physics.forcing.drag", *drag)?;
                 }
             }
-            Physics::Smoke { nu, buoyancy, boundaries, source, advection, density_advection } => {
+            Physics::Smoke {
+                nu,
+                buoyancy,
+                boundaries,
+                source,
+                advection,
+                density_advection,
+                boundaries_z,
+                obstacles3d,
+                inflow_patch,
+            } => {
+                if g.nz == 1 && inflow_patch.is_some() {
+                    return bad(
+                        "physics.inflow_patch",
+                        "the inflow patch is 3D only (grid.nz > 1); remove the key".into(),
+                    );
+                }
                 nonneg("physics.nu", *nu)?;
-                velocity_bc(boundaries)?;
+                if g.nz == 1 && boundaries_z.is_some() {
+                    return bad(
+                        "physics.boundaries_z",
+                        "the z faces exist only in 3D (grid.nz > 1); remove the key".into(),
+                    );
+                }
+                if g.nz == 1 && !obstacles3d.is_empty() {
+                    return bad(
+                        "physics.obstacles3d",
+                        "3D obstacles need a 3D grid (grid.nz > 1); use the top-level `obstacles` in 2D".into(),
+                    );
+                }
+                if g.nz > 1 {
+                    // 3D checks its faces itself (Smoke3dKind): outflow may sit on y_hi there.
+                } else {
+                    velocity_bc(boundaries)?;
+                }
                 if *advection == Advection::Conservative {
                     return bad(
                         "physics.advection",

@@ -81,20 +81,31 @@ pub(crate) fn build(setup: &Setup<'_>) -> SceneResult<(Box<dyn PhysicsKind>, f64
         Physics::NavierStokesSpectral { nu, forcing, .. } => {
             boxed(navier_stokes_spectral::SpectralKind::build(setup, *nu, forcing.as_ref())?)
         }
-        Physics::Smoke { nu, buoyancy, boundaries, source, advection, density_advection }
-            if setup.scene.grid.nz > 1 =>
-        {
-            boxed(smoke3d::Smoke3dKind::build(
-                setup,
-                *nu,
-                *buoyancy,
+        Physics::Smoke {
+            nu,
+            buoyancy,
+            boundaries,
+            source,
+            advection,
+            density_advection,
+            boundaries_z,
+            obstacles3d,
+            inflow_patch,
+        } if setup.scene.grid.nz > 1 => boxed(smoke3d::Smoke3dKind::build(
+            setup,
+            smoke3d::Smoke3dKeys {
+                nu: *nu,
+                buoyancy: *buoyancy,
                 boundaries,
+                boundaries_z: boundaries_z.as_ref(),
+                obstacles3d,
+                inflow_patch: inflow_patch.as_ref(),
                 source,
-                *advection,
-                *density_advection,
-            )?)
-        }
-        Physics::Smoke { nu, buoyancy, boundaries, source, advection, density_advection } => {
+                advection: *advection,
+                density_advection: *density_advection,
+            },
+        )?),
+        Physics::Smoke { nu, buoyancy, boundaries, source, advection, density_advection, .. } => {
             boxed(smoke::build(setup, *nu, *buoyancy, boundaries, source, *advection, *density_advection)?)
         }
         Physics::Cylinder { nu, inflow, advection, kick, inflow_profile, walls, surface } => {
