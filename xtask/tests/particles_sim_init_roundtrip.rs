@@ -82,7 +82,7 @@ fn shock_tube_output_has_p_e_h_and_restarts_with_init() {
     let b = arrays(&rest.join("moving_tube_seed0.npz"));
     // The restart's first frame is the file's last: positions, velocities, masses and energies
     // exactly; density, pressure and smoothing length re-solved from them to round-off.
-    for name in ["positions", "velocities", "mass", "internal_energy"] {
+    for name in ["positions", "velocities", "mass", "internal_energy", "viscosity_alpha"] {
         assert_eq!(frame(&a, name, -1), frame(&b, name, 0), "{name}");
     }
     for name in ["density", "pressure", "smoothing_length"] {

@@ -71,6 +71,13 @@ impl Scene {
                         init.smoothing_length.as_deref(),
                         init.fixed_positions.as_deref(),
                     )
+                    .and_then(|mut sim| {
+                        // The viscosity switch continues where the trajectory left it.
+                        if let Some(alpha) = &init.viscosity_alpha {
+                            sim.set_viscosity_alpha(alpha)?;
+                        }
+                        Ok(sim)
+                    })
                 }
             };
             let sim = built.map_err(|e| match e {
@@ -78,11 +85,12 @@ impl Scene {
                     scene_err(name, &format!("shock_tube.sph.{field}"), reason)
                 }
                 Error::Invalid { field, reason }
-                    if init.is_some() && ["x", "m", "u", "h", "buffers"].contains(&field) =>
+                    if init.is_some() && ["x", "m", "u", "h", "buffers", "viscosity_alpha"].contains(&field) =>
                 {
                     let f = match field {
                         "x" => "init.positions",
                         "buffers" => "init.fixed_positions",
+                        "viscosity_alpha" => "init.viscosity_alpha",
                         "m" => "init.mass",
                         "u" => "init.internal_energy",
                         _ => "init.smoothing_length",
@@ -389,12 +397,22 @@ fn build_periodic_1d<T: Real>(
     };
     let n = x.len();
     let h = h.map(|h| narrow::<T>(&h));
-    let sim = Sph1d::new(p.sph, narrow(&x), narrow(&v), narrow(&e), narrow(&m), h, n, domain).map_err(|e| match e {
-        Error::Invalid { field: "m", reason } => scene_err(name, "init.mass", reason),
-        Error::Invalid { field: "u", reason } => scene_err(name, "init.internal_energy", reason),
-        Error::Invalid { field: "h", reason } => scene_err(name, "init.smoothing_length", reason),
-        e => field_err(name, "periodic_1d.sph", e),
-    })?;
+    let restart_alpha = init.and_then(|i| i.viscosity_alpha.as_deref());
+    let sim = Sph1d::new(p.sph, narrow(&x), narrow(&v), narrow(&e), narrow(&m), h, n, domain)
+        .and_then(|mut sim| {
+            // The viscosity switch continues where the trajectory left it.
+            if let Some(alpha) = restart_alpha {
+                sim.set_viscosity_alpha(alpha)?;
+            }
+            Ok(sim)
+        })
+        .map_err(|e| match e {
+            Error::Invalid { field: "m", reason } => scene_err(name, "init.mass", reason),
+            Error::Invalid { field: "u", reason } => scene_err(name, "init.internal_energy", reason),
+            Error::Invalid { field: "h", reason } => scene_err(name, "init.smoothing_length", reason),
+            Error::Invalid { field: "viscosity_alpha", reason } => scene_err(name, "init.viscosity_alpha", reason),
+            e => field_err(name, "periodic_1d.sph", e),
+        })?;
     Ok(Stepper::Sph1d(Box::new(sim)))
 }
 

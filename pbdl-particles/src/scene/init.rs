@@ -24,6 +24,9 @@ pub struct InitState {
     pub internal_energy: Option<Vec<f64>>,
     /// Smoothing lengths `[n]` (1D compressible SPH; the starting guess of the density solve).
     pub smoothing_length: Option<Vec<f64>>,
+    /// Per-particle linear viscosity `α_i` `[n]` (1D compressible SPH: the viscosity switch's
+    /// state; absent, every particle starts at `alpha`).
+    pub viscosity_alpha: Option<Vec<f64>>,
     /// Fixed particles `[F * dim]` (`fixed_positions` `[F, d]` of a trajectory: a shock tube's
     /// ghosts or buffers at its last frame, which a shock tube restarts from).
     pub fixed_positions: Option<Vec<f64>>,
@@ -31,9 +34,9 @@ pub struct InitState {
 
 impl InitState {
     /// Reads `positions` (`[n, d]` or a trajectory `[T, n, d]`: its last frame), and optional
-    /// `velocities`, `mass`, `density`, `pressure`, `internal_energy`, `smoothing_length`
-    /// (`[n]` / `[T, n]`) and `fixed_positions` (`[F, d]`) from `.npz` arrays, widened to `f64`
-    /// (exact for `f32` and `f64` arrays).
+    /// `velocities`, `mass`, `density`, `pressure`, `internal_energy`, `smoothing_length`,
+    /// `viscosity_alpha` (`[n]` / `[T, n]`) and `fixed_positions` (`[F, d]`) from `.npz` arrays,
+    /// widened to `f64` (exact for `f32` and `f64` arrays).
     pub fn from_arrays(arrays: &[(String, Tensor)]) -> Result<Self> {
         let get = |name: &str| arrays.iter().find(|(n, _)| n == name).map(|(_, t)| t);
         let last = |name: &str, t: &Tensor, rank: usize| -> Result<Tensor> {
@@ -90,6 +93,7 @@ impl InitState {
             pressure: read("pressure", 1, n)?,
             internal_energy: read("internal_energy", 1, n)?,
             smoothing_length: read("smoothing_length", 1, n)?,
+            viscosity_alpha: read("viscosity_alpha", 1, n)?,
             fixed_positions: match get("fixed_positions") {
                 Some(t) => Some(last("fixed_positions", t, 2)?.flatten_all()?.to_vec1::<f64>()?),
                 None => None,

@@ -11,7 +11,8 @@ type OptionalArray = fn(&Frame) -> Option<&[f64]>;
 
 /// Writes `<dir>/<stem>.npz` with `positions` `[T, N, D]`, `velocities` `[T, N, D]`,
 /// `density` `[T, N]`, `mass` `[T, N]`, `time` `[T]`, for 1D compressible SPH (shock tubes,
-/// periodic 1D) `pressure`, `internal_energy` (specific) and `smoothing_length` `[T, N]`, and
+/// periodic 1D) `pressure`, `internal_energy` (specific), `smoothing_length` and `viscosity_alpha` (the
+/// viscosity switch's per-particle `α`) `[T, N]`, and
 /// `fixed_positions` `[F, D]` (walls, ghosts or buffers at the last frame; absent when there are
 /// none); plus, with the `viz` feature (on by default),
 /// `<stem>.png` (last frame) and `<stem>.gif` (all frames): particles coloured by speed (2D) or
@@ -51,6 +52,7 @@ pub fn write_trajectory<T: Real>(
         ("pressure", (|f| f.pressure.as_deref()) as OptionalArray),
         ("internal_energy", |f| f.internal_energy.as_deref()),
         ("smoothing_length", |f| f.smoothing_length.as_deref()),
+        ("viscosity_alpha", |f| f.viscosity_alpha.as_deref()),
     ] {
         if t > 0 && frames.iter().all(|f| get(f).is_some_and(|v| v.len() == n)) {
             arrays.push((name.to_string(), stack(&|f| get(f).unwrap_or(&[]), vec![t, n])?));

@@ -30,6 +30,9 @@ pub struct Frame {
     pub internal_energy: Option<Vec<f64>>,
     /// Smoothing lengths `[n]` (compressible 1D SPH only: adaptive per particle).
     pub smoothing_length: Option<Vec<f64>>,
+    /// Per-particle linear viscosity `α_i` `[n]` (compressible 1D SPH only: the viscosity
+    /// switch's state, so a restart continues it).
+    pub viscosity_alpha: Option<Vec<f64>>,
 }
 
 /// A built stepper of one of the solvers, in precision `T` (`f32` or `f64`).
@@ -67,6 +70,7 @@ fn wall_solver_frame<T: Real>(time: f64, x: &[[T; 2]], v: &[[T; 2]], density: &[
         pressure: None,
         internal_energy: None,
         smoothing_length: None,
+        viscosity_alpha: None,
     }
 }
 
@@ -135,6 +139,7 @@ impl<T: Real> Stepper<T> {
                     ),
                     internal_energy: Some(wide(&s.u[..n])),
                     smoothing_length: Some(wide(&s.h[..n])),
+                    viscosity_alpha: Some(wide(&s.viscosity_alpha()[..n])),
                 }
             }
             Stepper::Wcsph(s) => {
@@ -148,6 +153,7 @@ impl<T: Real> Stepper<T> {
                     pressure: None,
                     internal_energy: None,
                     smoothing_length: None,
+                    viscosity_alpha: None,
                 }
             }
             Stepper::Dfsph(s) => {
