@@ -203,3 +203,56 @@ fn coarse_dam_break_fronts_sanity_not_the_w1_bar() {
         assert!(rel.iter().all(|r| (-0.05..=0.30).contains(r)), "{label}: {rel:?}");
     }
 }
+
+/// Diagnostic for the W1 miss, print only (added after the W1 runs, on the review's question
+/// whether spray drives the lead): the bar's front is the single furthest fluid particle; the
+/// "bulk front" here is the furthest particle with at least 4 other fluid particles within
+/// 1.5 dx (half of the 8 a square-lattice particle has there), defined before this was run.
+/// Both printed against Martin & Moyce for every solver at dx = a/20 and a/40.
+#[test]
+#[ignore = "diagnostic, prints only (release: seconds)"]
+fn w1_bulk_front_next_to_the_furthest_particle() {
+    fn bulk_front(x: &[[f64; 2]], dx: f64) -> f64 {
+        let r2 = (1.5 * dx) * (1.5 * dx);
+        let mut best = f64::NEG_INFINITY;
+        for (i, p) in x.iter().enumerate() {
+            if p[0] <= best {
+                continue;
+            }
+            let near = x
+                .iter()
+                .enumerate()
+                .filter(|&(j, q)| j != i && (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) <= r2)
+                .count();
+            if near >= 4 {
+                best = p[0];
+            }
+        }
+        best
+    }
+    for dx in [0.05, 0.025] {
+        let scene = DamBreak { dx, ..Default::default() };
+        let mut w = scene.build(WcsphParams::default()).unwrap();
+        let mut i = scene.build_iisph(IisphParams::default()).unwrap();
+        let mut d = scene.build_dfsph(DfsphParams::default()).unwrap();
+        for (big_t, z_mm) in martin_moyce_1952().into_iter().filter(|(t, _)| (1.0..=2.5).contains(t)) {
+            let t = scene.physical_time(big_t);
+            w.run_until(t).unwrap();
+            i.run_until(t).unwrap();
+            d.run_until(t).unwrap();
+            let rows = [
+                ("WCSPH", w.front(), bulk_front(&w.x[..w.n_fluid()], dx)),
+                ("IISPH", i.front(), bulk_front(&i.x[..i.n_fluid()], dx)),
+                ("DFSPH", d.front(), bulk_front(&d.x[..d.n_fluid()], dx)),
+            ];
+            for (label, far, bulk) in rows {
+                eprintln!(
+                    "dx = a/{:.0} T = {big_t:.3} {label}: furthest {:+.1}%, bulk {:+.1}% (Z_MM {z_mm:.3})",
+                    1.0 / dx,
+                    100.0 * (far / scene.a / z_mm - 1.0),
+                    100.0 * (bulk / scene.a / z_mm - 1.0)
+                );
+            }
+        }
+    }
+}
