@@ -72,28 +72,6 @@ fn leak_history(scene: &DamBreak, mut step_to: impl FnMut(f64) -> usize) -> usiz
     worst
 }
 
-/// Bar W2 for WCSPH (defaults, dx = a/20).
-#[test]
-#[ignore = "bar W2: WCSPH to T = 10 (release: a few seconds)"]
-fn w2_wcsph_no_particle_leaves_the_tank_to_t10() {
-    let scene = DamBreak::default();
-    let mut sim = scene.build(WcsphParams::default()).unwrap();
-    let worst = leak_history(&scene, |t| {
-        sim.run_until(t).unwrap();
-        assert!(sim.is_finite());
-        sim.leaked()
-    });
-    eprintln!(
-        "W2 WCSPH: {} steps, max leaked {worst}, fallback corrections {}, deepest {:.3} dx, mean density error {:.2e}",
-        sim.steps(),
-        sim.wall_corrections(),
-        sim.max_penetration() / sim.physics().dx,
-        sim.mean_density_error()
-    );
-    assert_eq!(worst, 0);
-    assert_crossing_below_half_dx("WCSPH", sim.max_penetration() / sim.physics().dx);
-}
-
 /// `leaked() == 0` alone cannot fail while the impermeable-container fallback
 /// (`walls::enforce_container`) puts every crossing centre back onto the surface, so each W2
 /// test also asserts how deep centres got before the fallback acted: below half a spacing, the
@@ -102,25 +80,77 @@ fn assert_crossing_below_half_dx(label: &str, depth_in_dx: f64) {
     assert!(depth_in_dx < 0.5, "{label}: deepest wall crossing {depth_in_dx:.3} dx >= 0.5 dx");
 }
 
+/// What a W2 run reports besides the leak count.
+struct WallReport {
+    steps: u64,
+    corrections: u64,
+    depth_in_dx: f64,
+}
+
+/// Runs one solver's W2 check: `step_to(t)` advances to `t` and returns the leak count (after
+/// asserting a finite state); `report()` gives the fallback's counts at the end.
+fn check_w2(label: &str, scene: &DamBreak, step_to: impl FnMut(f64) -> usize, report: impl FnOnce() -> WallReport) {
+    let worst = leak_history(scene, step_to);
+    let r = report();
+    eprintln!(
+        "W2 {label}: {} steps, max leaked {worst}, fallback corrections {}, deepest {:.3} dx",
+        r.steps, r.corrections, r.depth_in_dx
+    );
+    assert_eq!(worst, 0);
+    assert_crossing_below_half_dx(label, r.depth_in_dx);
+}
+
+/// Bar W2 for WCSPH (defaults, dx = a/20).
+#[test]
+#[ignore = "bar W2: WCSPH to T = 10 (release: a few seconds)"]
+fn w2_wcsph_no_particle_leaves_the_tank_to_t10() {
+    let scene = DamBreak::default();
+    let sim = std::cell::RefCell::new(scene.build(WcsphParams::default()).unwrap());
+    check_w2(
+        "WCSPH",
+        &scene,
+        |t| {
+            let mut s = sim.borrow_mut();
+            s.run_until(t).unwrap();
+            assert!(s.is_finite());
+            s.leaked()
+        },
+        || {
+            let s = sim.borrow();
+            eprintln!("W2 WCSPH: mean density error {:.2e}", s.mean_density_error());
+            WallReport {
+                steps: s.steps(),
+                corrections: s.wall_corrections(),
+                depth_in_dx: s.max_penetration() / s.physics().dx,
+            }
+        },
+    );
+}
+
 /// Bar W2 for IISPH (defaults, dx = a/20).
 #[test]
 #[ignore = "bar W2: IISPH to T = 10 (release: a few seconds)"]
 fn w2_iisph_no_particle_leaves_the_tank_to_t10() {
     let scene = DamBreak::default();
-    let mut sim = scene.build_iisph(IisphParams::default()).unwrap();
-    let worst = leak_history(&scene, |t| {
-        sim.run_until(t).unwrap();
-        assert!(sim.is_finite());
-        sim.leaked()
-    });
-    eprintln!(
-        "W2 IISPH: {} steps, max leaked {worst}, fallback corrections {}, deepest {:.3} dx",
-        sim.steps(),
-        sim.wall_corrections(),
-        sim.max_penetration() / sim.dx()
+    let sim = std::cell::RefCell::new(scene.build_iisph(IisphParams::default()).unwrap());
+    check_w2(
+        "IISPH",
+        &scene,
+        |t| {
+            let mut s = sim.borrow_mut();
+            s.run_until(t).unwrap();
+            assert!(s.is_finite());
+            s.leaked()
+        },
+        || {
+            let s = sim.borrow();
+            WallReport {
+                steps: s.steps(),
+                corrections: s.wall_corrections(),
+                depth_in_dx: s.max_penetration() / s.dx(),
+            }
+        },
     );
-    assert_eq!(worst, 0);
-    assert_crossing_below_half_dx("solver", sim.max_penetration() / sim.dx());
 }
 
 /// Bar W2 for DFSPH (defaults, dx = a/20).
@@ -128,20 +158,25 @@ fn w2_iisph_no_particle_leaves_the_tank_to_t10() {
 #[ignore = "bar W2: DFSPH to T = 10 (release: a few seconds)"]
 fn w2_dfsph_no_particle_leaves_the_tank_to_t10() {
     let scene = DamBreak::default();
-    let mut sim = scene.build_dfsph(DfsphParams::default()).unwrap();
-    let worst = leak_history(&scene, |t| {
-        sim.run_until(t).unwrap();
-        assert!(sim.is_finite());
-        sim.leaked()
-    });
-    eprintln!(
-        "W2 DFSPH: {} steps, max leaked {worst}, fallback corrections {}, deepest {:.3} dx",
-        sim.steps(),
-        sim.wall_corrections(),
-        sim.max_penetration() / sim.dx()
+    let sim = std::cell::RefCell::new(scene.build_dfsph(DfsphParams::default()).unwrap());
+    check_w2(
+        "DFSPH",
+        &scene,
+        |t| {
+            let mut s = sim.borrow_mut();
+            s.run_until(t).unwrap();
+            assert!(s.is_finite());
+            s.leaked()
+        },
+        || {
+            let s = sim.borrow();
+            WallReport {
+                steps: s.steps(),
+                corrections: s.wall_corrections(),
+                depth_in_dx: s.max_penetration() / s.dx(),
+            }
+        },
     );
-    assert_eq!(worst, 0);
-    assert_crossing_below_half_dx("solver", sim.max_penetration() / sim.dx());
 }
 
 /// The same stencil in 3D (`WallStencil<T, 3>`, used by the 3D WCSPH and DFSPH): two fluid
