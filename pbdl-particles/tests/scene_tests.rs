@@ -302,7 +302,7 @@ fn stepper_evolves_like_the_solver_it_holds() {
                 assert_eq!(s.run_until(t_end).unwrap(), steps);
                 direct.frame().unwrap()
             }
-            Stepper::Wcsph(_) | Stepper::Dfsph(_) => unreachable!(),
+            Stepper::Wcsph(_) | Stepper::Dfsph(_) | Stepper::Wcsph3d(_) | Stepper::Dfsph3d(_) => unreachable!(),
         };
         assert_eq!(frame, via_enum.frame().unwrap(), "{name}: bit-identical states");
     }

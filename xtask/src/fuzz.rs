@@ -289,6 +289,25 @@ fn target_particles_scene(bytes: &[u8]) {
             }
         }
     }
+    // 3D kinds: skip any whose lattice (box plus wall layers, counted generously) is large; a
+    // non-positive or non-finite spacing goes on to the build's typed error.
+    let too_big_3d = |size: [f64; 3], dx: f64, layers: Option<usize>| {
+        let l = layers.unwrap_or(4) as f64;
+        let count = size.iter().map(|s| s.abs() + 2.0 * l * dx.abs()).product::<f64>() / dx.abs().powi(3);
+        dx != 0.0 && dx.is_finite() && (count.is_nan() || count > MAX_PARTICLES)
+    };
+    if let Some(d) = &scene.dam_break_3d {
+        let g = &d.geometry;
+        if too_big_3d([g.tank_width, g.tank_height, g.depth], g.dx, g.wall_layers) {
+            return;
+        }
+    }
+    if let Some(b) = &scene.block_drop_3d {
+        let g = &b.geometry;
+        if too_big_3d(g.box_size, g.dx, g.wall_layers) {
+            return;
+        }
+    }
     match scene.precision {
         Precision::F64 => step_particles(scene.build_as::<f64>(0, None)),
         Precision::F32 => step_particles(scene.build_as::<f32>(0, None)),

@@ -1,12 +1,16 @@
 //! Building a scene: [`Scene::build`] / [`Scene::build_as`] and one builder per section.
 
-use super::{scene_err, DamBreakScene, DamSolver, InitState, Periodic1dScene, Periodic2dScene, Scene, Stepper};
+use super::{
+    scene_err, BlockDrop3dScene, DamBreak3dScene, DamBreakScene, DamSolver, InitState, Periodic1dScene,
+    Periodic2dScene, Scene, Stepper,
+};
 use crate::dfsph::Dfsph;
 use crate::error::{Error, Result};
 use crate::iisph::Iisph;
 use crate::neighbors::Domain;
 use crate::sph1d::Sph1d;
 use crate::wcsph::{Wcsph, WcsphPhysics};
+use crate::wcsph3d::Wcsph3d;
 use crate::{MAX_H_OVER_DX, MIN_H_OVER_DX};
 use pbdl_core::noise::{perlin_1d, perlin_2d};
 use pbdl_core::Real;
@@ -109,6 +113,12 @@ impl Scene {
         }
         if let Some(p) = &self.periodic_2d {
             return build_periodic_2d(name, p, seed, init);
+        }
+        if let Some(db) = &self.dam_break_3d {
+            return build_dam_break_3d(name, db, init);
+        }
+        if let Some(bd) = &self.block_drop_3d {
+            return build_block_drop_3d(name, bd, init);
         }
         unreachable!("validate checks that one section is present")
     }
@@ -301,7 +311,7 @@ fn build_dam_break<T: Real>(name: &str, db: &DamBreakScene, init: Option<&InitSt
             Stepper::Wcsph(s) => s.container(),
             Stepper::Iisph(s) => s.container(),
             Stepper::Dfsph(s) => s.container(),
-            Stepper::Sph1d(_) => unreachable!(),
+            Stepper::Sph1d(_) | Stepper::Wcsph3d(_) | Stepper::Dfsph3d(_) => unreachable!(),
         };
         for (i, p) in init.points2().iter().enumerate() {
             if !(p[0] >= lo[0] && p[0] <= hi[0] && p[1] >= lo[1] && p[1] <= hi[1]) {
@@ -310,6 +320,185 @@ fn build_dam_break<T: Real>(name: &str, db: &DamBreakScene, init: Option<&InitSt
         }
     }
     Ok(stepper)
+}
+
+/// The fields of [`DfsphParams`](crate::dfsph::DfsphParams) its validation names.
+const DFSPH_FIELDS: [&str; 10] = [
+    "h_over_dx",
+    "cfl",
+    "dt_max",
+    "tolerance",
+    "max_iterations",
+    "divergence_tolerance",
+    "max_divergence_iterations",
+    "omega",
+    "warm_start",
+    "nu",
+];
+
+/// The fields of [`Wcsph3dParams`](crate::wcsph3d::Wcsph3dParams) its validation names.
+const WCSPH3D_FIELDS: [&str; 4] = ["h_over_dx", "alpha", "delta", "cfl"];
+
+/// A 3D box of `size` in spacing `dx` must hold at most [`MAX_PARTICLES`] lattice cells.
+fn check_cells_3d(name: &str, field: &str, size: [f64; 3], dx: f64) -> Result<()> {
+    if !(dx > 0.0 && dx.is_finite()) {
+        return Err(scene_err(name, field, format!("{dx}; must be positive and finite")));
+    }
+    let cells: f64 = size.iter().map(|s| (s.abs() / dx).max(1.0)).product();
+    if cells.is_nan() || cells > MAX_PARTICLES as f64 {
+        return Err(scene_err(
+            name,
+            field,
+            format!("{dx} gives {cells:.3e} lattice cells in the tank (at most {MAX_PARTICLES}); use a larger spacing"),
+        ));
+    }
+    Ok(())
+}
+
+/// The `[dam_break_3d]` section's 3D WCSPH or DFSPH stepper, optionally restarted from `init`
+/// (3D positions and velocities of the fluid; the walls are the scene's).
+fn build_dam_break_3d<T: Real>(name: &str, db: &DamBreak3dScene, init: Option<&InitState>) -> Result<Stepper<T>> {
+    let sec = "dam_break_3d.geometry";
+    let g = &db.geometry;
+    match db.solver {
+        DamSolver::Wcsph => check_h_over_dx(name, "dam_break_3d.wcsph.h_over_dx", db.wcsph.h_over_dx)?,
+        DamSolver::Dfsph => check_h_over_dx(name, "dam_break_3d.dfsph.h_over_dx", db.dfsph.h_over_dx)?,
+        DamSolver::Iisph => {
+            return Err(scene_err(
+                name,
+                "dam_break_3d.solver",
+                "\"iisph\" has no 3D stepper; use \"wcsph\" or \"dfsph\"",
+            ))
+        }
+    }
+    if !(g.dx > 0.0 && g.dx.is_finite()) {
+        return Err(scene_err(name, "dam_break_3d.geometry.dx", format!("{}; must be positive and finite", g.dx)));
+    }
+    let extent = g.a * g.tank_width.abs().max(g.tank_height.abs()).max(g.height_ratio.abs()).max(g.depth.abs()) * 4.0;
+    if !extent.is_finite() {
+        return Err(scene_err(
+            name,
+            "dam_break_3d.geometry.a",
+            format!(
+                "{} m with tank {} x {} x {} a overflows; use metres-sized values",
+                g.a, g.tank_width, g.tank_height, g.depth
+            ),
+        ));
+    }
+    if let Some(layers) = g.wall_layers.filter(|&l| l > MAX_WALL_LAYERS) {
+        return Err(scene_err(
+            name,
+            "dam_break_3d.geometry.wall_layers",
+            format!("{layers}; use at most {MAX_WALL_LAYERS}"),
+        ));
+    }
+    // Tank sizes over dx (both in units of a).
+    check_cells_3d(name, "dam_break_3d.geometry.dx", [g.tank_width, g.tank_height, g.depth], g.dx)?;
+    let stepper = match db.solver {
+        DamSolver::Wcsph => Stepper::Wcsph3d(Box::new(g.build_as::<T>(db.wcsph).map_err(|e| match e {
+            Error::Invalid { field, reason } if WCSPH3D_FIELDS.contains(&field) => {
+                scene_err(name, &format!("dam_break_3d.wcsph.{field}"), reason)
+            }
+            e => field_err(name, sec, e),
+        })?)),
+        DamSolver::Dfsph => Stepper::Dfsph3d(Box::new(g.build_dfsph_as::<T>(db.dfsph).map_err(|e| match e {
+            Error::Invalid { field, reason } if DFSPH_FIELDS.contains(&field) => {
+                scene_err(name, &format!("dam_break_3d.dfsph.{field}"), reason)
+            }
+            e => field_err(name, sec, e),
+        })?)),
+        DamSolver::Iisph => unreachable!("refused above"),
+    };
+    match init {
+        None => Ok(stepper),
+        Some(init) => restart_3d(name, stepper, init, [0.0, -g.g, 0.0]),
+    }
+}
+
+/// The `[block_drop_3d]` section's 3D WCSPH stepper, optionally restarted from `init`.
+fn build_block_drop_3d<T: Real>(name: &str, bd: &BlockDrop3dScene, init: Option<&InitState>) -> Result<Stepper<T>> {
+    let sec = "block_drop_3d.geometry";
+    let g = &bd.geometry;
+    check_h_over_dx(name, "block_drop_3d.wcsph.h_over_dx", bd.wcsph.h_over_dx)?;
+    if let Some(layers) = g.wall_layers.filter(|&l| l > MAX_WALL_LAYERS) {
+        return Err(scene_err(
+            name,
+            "block_drop_3d.geometry.wall_layers",
+            format!("{layers}; use at most {MAX_WALL_LAYERS}"),
+        ));
+    }
+    if !g.box_size.iter().all(|s| *s > 0.0 && s.is_finite()) {
+        return Err(scene_err(
+            name,
+            "block_drop_3d.geometry.box_size",
+            format!("{:?}; sides must be positive and finite", g.box_size),
+        ));
+    }
+    check_cells_3d(name, "block_drop_3d.geometry.dx", g.box_size, g.dx)?;
+    let sim = g.build_as::<T>(bd.wcsph).map_err(|e| match e {
+        Error::Invalid { field, reason } if WCSPH3D_FIELDS.contains(&field) => {
+            scene_err(name, &format!("block_drop_3d.wcsph.{field}"), reason)
+        }
+        e => field_err(name, sec, e),
+    })?;
+    let stepper = Stepper::Wcsph3d(Box::new(sim));
+    match init {
+        None => Ok(stepper),
+        Some(init) => restart_3d(name, stepper, init, [0.0, -g.g, 0.0]),
+    }
+}
+
+/// A 3D stepper with its fluid replaced by `init`'s (`[n, 3]` positions, optional velocities,
+/// WCSPH: optional densities and a uniform mass); the walls, parameters and constants are the
+/// built scene's. Fluid must start inside the tank.
+fn restart_3d<T: Real>(name: &str, stepper: Stepper<T>, init: &InitState, gravity: [f64; 3]) -> Result<Stepper<T>> {
+    init.check(3, name)?;
+    let [lo, hi] = stepper.container_3d().expect("a 3D stepper");
+    for (i, p) in init.points3().iter().enumerate() {
+        if !(0..3).all(|d| p[d] >= lo[d] && p[d] <= hi[d]) {
+            return Err(Error::OutsideDomain { index: i, position: p.to_vec(), lo: lo.to_vec(), hi: hi.to_vec() });
+        }
+    }
+    let cast = |p: [f64; 3]| p.map(T::c);
+    let x: Vec<[T; 3]> = init.points3().into_iter().map(cast).collect();
+    let v: Vec<[T; 3]> = init.velocities3().into_iter().map(cast).collect();
+    let nf = x.len();
+    Ok(match stepper {
+        Stepper::Wcsph3d(s) => {
+            let mut phys = *s.physics();
+            phys.mass = init.uniform_mass(phys.mass, name)?;
+            let rho: Vec<T> = match &init.density {
+                Some(d) => narrow(d),
+                None => vec![T::c(phys.rho0); nf],
+            };
+            let walls = &s.x[s.n_fluid()..];
+            let rho: Vec<T> = rho.into_iter().chain(std::iter::repeat_n(T::c(phys.rho0), walls.len())).collect();
+            let all: Vec<[T; 3]> = x.into_iter().chain(walls.iter().copied()).collect();
+            Stepper::Wcsph3d(Box::new(
+                Wcsph3d::new(*s.params(), phys, all, v, rho, nf, *s.domain(), s.container())
+                    .map_err(|e| field_err(name, "init", e))?,
+            ))
+        }
+        Stepper::Dfsph3d(s) => {
+            let walls = &s.x[s.n_fluid()..];
+            let all: Vec<[T; 3]> = x.into_iter().chain(walls.iter().copied()).collect();
+            // The search box: the tank and its walls, with two spacings to spare (as the tank's).
+            let [mut blo, mut bhi] = s.container();
+            for p in walls {
+                for d in 0..3 {
+                    blo[d] = blo[d].min(p[d].wide());
+                    bhi[d] = bhi[d].max(p[d].wide());
+                }
+            }
+            let m = 2.0 * s.dx();
+            let domain = Domain::bounded(blo.map(|c| T::c(c - m)), bhi.map(|c| T::c(c + m)));
+            Stepper::Dfsph3d(Box::new(
+                Dfsph::new(*s.params(), s.rho0(), s.dx(), gravity, all, v, nf, domain, s.container())
+                    .map_err(|e| field_err(name, "init", e))?,
+            ))
+        }
+        s => s,
+    })
 }
 
 /// The search box around a tank (walls included).

@@ -142,7 +142,18 @@ impl InitState {
         }
     }
 
-    /// The single mass of a 2D solver (all equal), or `default`.
+    pub(super) fn points3(&self) -> Vec<[f64; 3]> {
+        self.positions.chunks(3).map(|c| [c[0], c[1], c[2]]).collect()
+    }
+
+    pub(super) fn velocities3(&self) -> Vec<[f64; 3]> {
+        match &self.velocities {
+            Some(v) => v.chunks(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            None => vec![[0.0; 3]; self.len()],
+        }
+    }
+
+    /// The single mass of a 2D or 3D solver (all equal), or `default`.
     pub(super) fn uniform_mass(&self, default: f64, scene: &str) -> Result<f64> {
         match &self.mass {
             None => Ok(default),
@@ -152,7 +163,7 @@ impl InitState {
                     return Err(Error::SceneField {
                         scene: scene.into(),
                         field: "init.mass".into(),
-                        reason: "the 2D solvers need equal masses".into(),
+                        reason: "the 2D and 3D solvers need equal masses".into(),
                     });
                 }
                 Ok(m0)

@@ -5,7 +5,8 @@
 //! A scene has a `name`, `about`, `frames` (output frames after the initial one), `frame_dt`
 //! (time between frames), a `seed` (noise scenes), a `precision` (`"f64"`, the default, or
 //! `"f32"`: the solver's particle arrays, see [`Precision`]) and exactly one of the sections
-//! `[shock_tube]`, `[dam_break]`, `[periodic_1d]`, `[periodic_2d]`. Unknown keys are errors
+//! `[shock_tube]`, `[dam_break]`, `[periodic_1d]`, `[periodic_2d]`, `[dam_break_3d]`,
+//! `[block_drop_3d]`. Unknown keys are errors
 //! ([`Error::SceneField`] naming the key), and so are bad values (the field's full path, e.g.
 //! `dam_break.geometry.dx`).
 //!
@@ -17,6 +18,8 @@
 //! | `dam_break_dfsph` | the same with divergence-free SPH (DFSPH) |
 //! | `periodic_1d_noise` | [`Periodic1dScene`]: periodic 1D compressible SPH, Perlin-noise density (SFBC test case I style) |
 //! | `periodic_2d_box` | [`Periodic2dScene`]: periodic 2D WCSPH, no walls, no gravity, noise-driven velocity (SFBC test case II style) |
+//! | `dam_break_3d` | [`DamBreak3dScene`]: the 3D dam break (quasi-2D column between free-slip side walls) with 3D WCSPH, coarse (dx = a/10) |
+//! | `block_drop_3d` | [`BlockDrop3dScene`]: a block of water dropped into a closed box, 3D WCSPH |
 //!
 //! ```
 //! use pbdl_particles::scene::Scene;
@@ -52,6 +55,7 @@ use crate::iisph::IisphParams;
 use crate::riemann::GasState;
 use crate::sph1d::{ShockTube, Sph1dParams};
 use crate::wcsph::{DamBreak, WcsphParams};
+use crate::wcsph3d::{BlockDrop3d, DamBreak3d, Wcsph3dParams};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -62,8 +66,16 @@ macro_rules! builtin {
 }
 
 /// The built-in scenes: `(name, TOML text)`.
-pub const BUILTIN: &[(&str, &str)] =
-    builtin!("shock_tube", "dam_break", "dam_break_iisph", "dam_break_dfsph", "periodic_1d_noise", "periodic_2d_box");
+pub const BUILTIN: &[(&str, &str)] = builtin!(
+    "shock_tube",
+    "dam_break",
+    "dam_break_iisph",
+    "dam_break_dfsph",
+    "periodic_1d_noise",
+    "periodic_2d_box",
+    "dam_break_3d",
+    "block_drop_3d",
+);
 
 /// Names of the built-in scenes.
 pub fn builtin_names() -> Vec<&'static str> {
@@ -101,6 +113,12 @@ pub struct Scene {
     /// A periodic 2D weakly compressible box with noisy velocity.
     #[serde(default)]
     pub periodic_2d: Option<Periodic2dScene>,
+    /// A 3D dam break.
+    #[serde(default)]
+    pub dam_break_3d: Option<DamBreak3dScene>,
+    /// Fluid bodies dropped into a closed 3D box.
+    #[serde(default)]
+    pub block_drop_3d: Option<BlockDrop3dScene>,
 }
 
 /// The precision of a run (scene key `precision`, `cargo xtask sim particles --precision`).
@@ -227,6 +245,83 @@ pub struct DamBreakScene {
     pub dfsph: DfsphParams,
 }
 
+/// `[dam_break_3d]`: the 3D dam break ([`DamBreak3d`]) with 3D WCSPH or DFSPH.
+///
+/// `solver = "iisph"` is an error naming `dam_break_3d.solver` (IISPH has no 3D stepper).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DamBreak3dScene {
+    /// `"wcsph"` (default) or `"dfsph"`.
+    pub solver: DamSolver,
+    /// Geometry and physics (`[dam_break_3d.geometry]`, the fields of [`DamBreak3d`]).
+    pub geometry: DamBreak3d,
+    /// 3D WCSPH parameters (used when `solver = "wcsph"`).
+    pub wcsph: Wcsph3dParams,
+    /// DFSPH parameters (used when `solver = "dfsph"`): keys not given keep
+    /// [`DfsphParams::default_3d`]'s values (so a partial table keeps the 3D `omega`).
+    #[serde(deserialize_with = "dfsph_over_default_3d")]
+    pub dfsph: DfsphParams,
+}
+
+/// A `[dam_break_3d.dfsph]` table over [`DfsphParams::default_3d`] (its keys replace the
+/// defaults'; unknown keys and bad values are errors as for any table).
+fn dfsph_over_default_3d<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<DfsphParams, D::Error> {
+    use serde::de::Error as _;
+    let given = toml::Table::deserialize(d)?;
+    let table = toml::Table::try_from(DfsphParams::default_3d()).map_err(D::Error::custom)?;
+    let over = |keys: toml::Table| {
+        let mut t = table.clone();
+        t.extend(keys);
+        DfsphParams::deserialize(t)
+    };
+    over(given.clone()).map_err(|e| {
+        // Name the key whose value is bad (the span is the table's, not the value's).
+        let bad = given
+            .iter()
+            .find_map(|(k, v)| over(toml::Table::from_iter([(k.clone(), v.clone())])).err().map(|e| (k.clone(), e)));
+        match bad {
+            Some((key, e)) if !e.message().starts_with("unknown field") => {
+                D::Error::custom(format!("{VALUE_ERROR_PREFIX}{key}`: {}", e.message()))
+            }
+            _ => D::Error::custom(e.message()),
+        }
+    })
+}
+
+/// How [`dfsph_over_default_3d`] starts an error naming a key with a bad value (read back by
+/// [`Scene::from_toml_str`]).
+const VALUE_ERROR_PREFIX: &str = "invalid value for `";
+
+impl Default for DamBreak3dScene {
+    fn default() -> Self {
+        DamBreak3dScene {
+            solver: DamSolver::Wcsph,
+            geometry: DamBreak3d::default(),
+            wcsph: Wcsph3dParams::default(),
+            dfsph: DfsphParams::default_3d(),
+        }
+    }
+}
+
+/// `[block_drop_3d]`: fluid blocks and balls dropped into a closed box ([`BlockDrop3d`]) with
+/// 3D WCSPH. `[block_drop_3d.geometry]` has every field of [`BlockDrop3d`] (`wall_layers`
+/// optional), the bodies as an array of tables:
+///
+/// ```toml
+/// [[block_drop_3d.geometry.bodies]]
+/// velocity = [0.0, 0.0, 0.0]
+/// shape = { block = { lo = [0.3, 0.5, 0.3], hi = [0.7, 0.9, 0.7] } }
+/// # or: shape = { sphere = { center = [0.5, 0.5, 0.5], radius = 0.2 } }
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct BlockDrop3dScene {
+    /// Box, spacing, bodies and physics (default [`BlockDrop3d::default`]).
+    pub geometry: BlockDrop3d,
+    /// 3D WCSPH parameters.
+    pub wcsph: Wcsph3dParams,
+}
+
 /// `[periodic_1d]`: periodic 1D compressible SPH with a Perlin-noise density.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -336,6 +431,7 @@ impl Scene {
                 .and_then(|r| r.split('`').next())
                 .map(str::to_string)
                 .or_else(|| msg.strip_prefix("missing field `").and_then(|r| r.split('`').next()).map(str::to_string))
+                .or_else(|| msg.strip_prefix(VALUE_ERROR_PREFIX).and_then(|r| r.split('`').next()).map(str::to_string))
                 .or_else(|| e.span().and_then(|span| key_of_value_at(text, span.start)));
             match field {
                 Some(field) => Error::SceneField { scene: origin.into(), field, reason: e.to_string() },
@@ -382,6 +478,8 @@ impl Scene {
             self.dam_break.is_some(),
             self.periodic_1d.is_some(),
             self.periodic_2d.is_some(),
+            self.dam_break_3d.is_some(),
+            self.block_drop_3d.is_some(),
         ]
         .iter()
         .filter(|&&b| b)
@@ -391,7 +489,8 @@ impl Scene {
                 n,
                 "shock_tube",
                 format!(
-                    "{count} sections; give exactly one of [shock_tube], [dam_break], [periodic_1d], [periodic_2d]"
+                    "{count} sections; give exactly one of [shock_tube], [dam_break], [periodic_1d], [periodic_2d], \
+                     [dam_break_3d], [block_drop_3d]"
                 ),
             ));
         }

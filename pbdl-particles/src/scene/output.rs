@@ -16,7 +16,8 @@ type OptionalArray = fn(&Frame) -> Option<&[f64]>;
 /// `fixed_positions` `[F, D]` (walls, ghosts or buffers at the last frame; absent when there are
 /// none); plus, with the `viz` feature (on by default),
 /// `<stem>.png` (last frame) and `<stem>.gif` (all frames): particles coloured by speed (2D) or
-/// density against x coloured by velocity (1D).
+/// density against x coloured by velocity (1D), or a side view projected along z coloured by
+/// speed (3D).
 /// Returns the files written.
 ///
 /// Dtypes: the particle arrays have the stepper's precision (`f64`, or `f32` for an `f32` run:
@@ -111,6 +112,7 @@ fn render_png_gif<T: Real>(
 
 #[cfg(feature = "viz")]
 /// Scatter rasters of the frames: 2D particles coloured by speed (walls at the lowest value);
+/// 3D: the same, projected along z;
 /// 1D: density against x, coloured by velocity.
 fn render_frames<T: Real>(stepper: &Stepper<T>, frames: &[Frame], fixed: &[f64]) -> Vec<crate::render::Raster> {
     let [lo, hi] = stepper.view_box();
@@ -133,6 +135,32 @@ fn render_frames<T: Real>(stepper: &Stepper<T>, frames: &[Frame], fixed: &[f64])
                     .map(|(&x, &r)| [x, 0.05 * height + 0.9 * height * (r - rmin) / span])
                     .collect();
                 crate::render::scatter(&pts, &f.velocities, [lo[0], 0.0], [hi[0], height], ppu, 1.0)
+            })
+            .collect()
+    } else if let Some([clo, chi]) = stepper.container_3d() {
+        // 3D: a side view projected along z (as `cargo xtask run particles3d`): the wall
+        // particles seen edge-on (outside the tank's x-y outline, not the back plate) at the
+        // lowest value, then the fluid far first so the nearest paint on top, coloured by speed.
+        let ppu = 240.0 / (hi[0] - lo[0]).max(hi[1] - lo[1]);
+        let walls: Vec<[f64; 2]> = fixed
+            .chunks(3)
+            .filter(|c| c[0] < clo[0] || c[0] > chi[0] || c[1] < clo[1] || c[1] > chi[1])
+            .map(|c| [c[0], c[1]])
+            .collect();
+        let r = (0.6 * stepper.spacing() * ppu).max(0.6);
+        frames
+            .iter()
+            .map(|f| {
+                let mut order: Vec<usize> = (0..f.positions.len() / 3).collect();
+                order.sort_by(|&a, &b| f.positions[3 * b + 2].total_cmp(&f.positions[3 * a + 2]));
+                let mut pts = walls.clone();
+                let mut vals = vec![0.0; walls.len()];
+                for i in order {
+                    let (p, v) = (&f.positions[3 * i..3 * i + 3], &f.velocities[3 * i..3 * i + 3]);
+                    pts.push([p[0], p[1]]);
+                    vals.push((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt());
+                }
+                crate::render::scatter(&pts, &vals, lo, hi, ppu, r)
             })
             .collect()
     } else {

@@ -7,6 +7,7 @@ use crate::error::Result;
 use crate::iisph::Iisph;
 use crate::sph1d::Sph1d;
 use crate::wcsph::Wcsph;
+use crate::wcsph3d::Wcsph3d;
 use pbdl_core::stepper::Evolve;
 use pbdl_core::Real;
 
@@ -46,6 +47,10 @@ pub enum Stepper<T: Real = f64> {
     Iisph(Box<Iisph<T>>),
     /// 2D divergence-free SPH.
     Dfsph(Box<Dfsph<T>>),
+    /// 3D weakly compressible SPH.
+    Wcsph3d(Box<Wcsph3d<T>>),
+    /// 3D divergence-free SPH.
+    Dfsph3d(Box<Dfsph<T, 3>>),
 }
 
 /// `T` values widened to `f64` (exact).
@@ -56,6 +61,11 @@ fn wide<T: Real>(v: &[T]) -> Vec<f64> {
 /// `[T; 2]` points flattened and widened to `f64`.
 fn wide2<T: Real>(v: &[[T; 2]]) -> Vec<f64> {
     v.iter().flat_map(|p| [p[0].wide(), p[1].wide()]).collect()
+}
+
+/// `[T; 3]` points flattened and widened to `f64`.
+fn wide3<T: Real>(v: &[[T; 3]]) -> Vec<f64> {
+    v.iter().flat_map(|p| p.map(Real::wide)).collect()
 }
 
 /// A frame of the incompressible solvers with wall particles (IISPH, DFSPH): the fluid
@@ -84,6 +94,7 @@ impl<T: Real> Stepper<T> {
     pub fn dim(&self) -> usize {
         match self {
             Stepper::Sph1d(_) => 1,
+            Stepper::Wcsph3d(_) | Stepper::Dfsph3d(_) => 3,
             _ => 2,
         }
     }
@@ -95,6 +106,8 @@ impl<T: Real> Stepper<T> {
             Stepper::Wcsph(s) => s.operators(),
             Stepper::Iisph(s) => s.operators(),
             Stepper::Dfsph(s) => s.operators(),
+            Stepper::Wcsph3d(s) => s.operators(),
+            Stepper::Dfsph3d(s) => s.operators(),
         }
     }
 
@@ -105,6 +118,8 @@ impl<T: Real> Stepper<T> {
             Stepper::Wcsph(s) => s.time(),
             Stepper::Iisph(s) => s.time(),
             Stepper::Dfsph(s) => s.time(),
+            Stepper::Wcsph3d(s) => s.time(),
+            Stepper::Dfsph3d(s) => s.time(),
         }
     }
 
@@ -115,6 +130,8 @@ impl<T: Real> Stepper<T> {
             Stepper::Wcsph(s) => s.steps(),
             Stepper::Iisph(s) => s.steps(),
             Stepper::Dfsph(s) => s.steps(),
+            Stepper::Wcsph3d(s) => s.steps(),
+            Stepper::Dfsph3d(s) => s.steps(),
         }
     }
 
@@ -164,6 +181,35 @@ impl<T: Real> Stepper<T> {
                 let density = s.summation_density()?;
                 wall_solver_frame(s.time(), &s.x[..s.n_fluid()], &s.v, &density, s.mass())
             }
+            Stepper::Wcsph3d(s) => {
+                let n = s.n_fluid();
+                Frame {
+                    time: s.time(),
+                    positions: wide3(&s.x[..n]),
+                    velocities: wide3(&s.v),
+                    density: wide(&s.rho[..n]),
+                    mass: vec![s.physics().mass; n],
+                    pressure: None,
+                    internal_energy: None,
+                    smoothing_length: None,
+                    viscosity_alpha: None,
+                }
+            }
+            Stepper::Dfsph3d(s) => {
+                let density = s.summation_density()?;
+                let n = s.n_fluid();
+                Frame {
+                    time: s.time(),
+                    positions: wide3(&s.x[..n]),
+                    velocities: wide3(&s.v),
+                    density: wide(&density),
+                    mass: vec![s.mass(); n],
+                    pressure: None,
+                    internal_energy: None,
+                    smoothing_length: None,
+                    viscosity_alpha: None,
+                }
+            }
         })
     }
 
@@ -174,10 +220,23 @@ impl<T: Real> Stepper<T> {
             Stepper::Wcsph(s) => wide2(&s.x[s.n_fluid()..]),
             Stepper::Iisph(s) => wide2(&s.x[s.n_fluid()..]),
             Stepper::Dfsph(s) => wide2(&s.x[s.n_fluid()..]),
+            Stepper::Wcsph3d(s) => wide3(&s.x[s.n_fluid()..]),
+            Stepper::Dfsph3d(s) => wide3(&s.x[s.n_fluid()..]),
         }
     }
 
-    /// The box to draw: `[lo, hi]` (1D: x range and density range are chosen by the renderer).
+    /// The 3D solvers' container box `[lo, hi]` (the tank the fluid stays in); `None` in 1D
+    /// and 2D.
+    pub fn container_3d(&self) -> Option<[[f64; 3]; 2]> {
+        match self {
+            Stepper::Wcsph3d(s) => Some(s.container()),
+            Stepper::Dfsph3d(s) => Some(s.container()),
+            _ => None,
+        }
+    }
+
+    /// The box to draw: `[lo, hi]` (1D: x range and density range are chosen by the renderer;
+    /// 3D: the x-y side of the tank, the view projected along z).
     pub fn view_box(&self) -> [[f64; 2]; 2] {
         match self {
             Stepper::Sph1d(s) => {
@@ -194,6 +253,10 @@ impl<T: Real> Stepper<T> {
             }
             Stepper::Iisph(s) => padded(s.container(), 3.0 * s.dx()),
             Stepper::Dfsph(s) => padded(s.container(), 3.0 * s.dx()),
+            Stepper::Wcsph3d(_) | Stepper::Dfsph3d(_) => {
+                let [lo, hi] = self.container_3d().expect("3D stepper");
+                padded([[lo[0], lo[1]], [hi[0], hi[1]]], 3.0 * self.spacing())
+            }
         }
     }
 
@@ -207,6 +270,8 @@ impl<T: Real> Stepper<T> {
             Stepper::Wcsph(s) => s.physics().dx,
             Stepper::Iisph(s) => s.dx(),
             Stepper::Dfsph(s) => s.dx(),
+            Stepper::Wcsph3d(s) => s.physics().dx,
+            Stepper::Dfsph3d(s) => s.dx(),
         }
     }
 }
@@ -230,6 +295,8 @@ impl<T: Real> Evolve for Stepper<T> {
             Stepper::Wcsph(s) => Evolve::stable_dt(&**s),
             Stepper::Iisph(s) => Evolve::stable_dt(&**s),
             Stepper::Dfsph(s) => Evolve::stable_dt(&**s),
+            Stepper::Wcsph3d(s) => Evolve::stable_dt(&**s),
+            Stepper::Dfsph3d(s) => Evolve::stable_dt(&**s),
         }
     }
 
@@ -239,6 +306,8 @@ impl<T: Real> Evolve for Stepper<T> {
             Stepper::Wcsph(s) => s.step(dt),
             Stepper::Iisph(s) => s.step(dt),
             Stepper::Dfsph(s) => s.step(dt),
+            Stepper::Wcsph3d(s) => s.step(dt),
+            Stepper::Dfsph3d(s) => s.step(dt),
         }
     }
 
@@ -248,6 +317,8 @@ impl<T: Real> Evolve for Stepper<T> {
             Stepper::Wcsph(s) => s.next_dt(t_end),
             Stepper::Iisph(s) => s.next_dt(t_end),
             Stepper::Dfsph(s) => s.next_dt(t_end),
+            Stepper::Wcsph3d(s) => s.next_dt(t_end),
+            Stepper::Dfsph3d(s) => s.next_dt(t_end),
         }
     }
 }
