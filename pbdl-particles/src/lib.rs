@@ -17,7 +17,7 @@
 //! | [`dfsph`] | [`dfsph::Dfsph`]: divergence-free SPH in 2D or 3D (`Dfsph<T, D>`; Bender & Koschier: divergence-free solve + constant-density solve with the α factors, warm start; the wall particles of [`walls`]), [`DamBreak::build_dfsph`] / [`DamBreak::build_dfsph_as`], in 3D [`wcsph3d::DamBreak3d::build_dfsph`] / [`wcsph3d::DamBreak3d::build_dfsph_as`] with [`dfsph::DfsphParams::default_3d`] |
 //! | [`walls`] | wall particles shared by WCSPH, IISPH and DFSPH in 2D and by 3D WCSPH and DFSPH (generic over the dimension): Adami, Hu & Adams (2012) pressure extrapolation with the hydrostatic term and no-slip wall velocity ([`walls::WallStencil`]), the impermeable-container fallback and leak/front diagnostics |
 //! | [`render`] | particles splatted into pixel fields for PNG/GIF ([`render::scatter`]) |
-//! | [`scene`] | [`scene::Scene`]: TOML scenes (`precision = "f32"` or `"f64"`) (shock tube, dam break WCSPH/IISPH, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
+//! | [`scene`] | [`scene::Scene`]: TOML scenes (`precision = "f32"` or `"f64"`) (shock tube, dam break WCSPH/IISPH/DFSPH, 3D dam break WCSPH/DFSPH, 3D block drop, periodic 1D noisy density, periodic 2D noisy velocity) building a [`scene::Stepper`]; `.npz` trajectories and PNG/GIF renders |
 //! | [`Evolve`] | the one solver trait (re-exported from [`pbdl_core::stepper`]): [`Sph1d`], [`Wcsph`], [`Iisph`] and [`scene::Stepper`] step in place with an adaptive stable step; [`Evolve::run_until`] (IISPH in equal steps, the others with a shortened last step) |
 //! | [`validation`] | [`validation::martin_moyce_1952`]: the measured dam-break surge front (embedded) |
 //! | [`error`] | [`Error`], [`Result`] |
