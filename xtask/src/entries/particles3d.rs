@@ -252,48 +252,94 @@ fn bench_wcsph3d_step(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     Ok(rows)
 }
 
+/// What a long 3D dam-break run saw at its checks (every 0.1 T).
+struct LongRun {
+    /// Steps at the first non-finite state or solver error.
+    nan_at: Option<u64>,
+    /// Steps at the first check with a particle outside the tank.
+    leak_at: Option<u64>,
+    /// The solver's error, if one stopped the run.
+    error: Option<String>,
+    max_leaked: usize,
+    /// The largest value of the run's density measure over the checks.
+    max_density: f64,
+}
+
+/// Runs `sim` to `t_end` (dimensionless time of `scene`) in stops of 0.1 T, checking
+/// finiteness, leaks and the largest `density(sim)`.
+fn run_long<S: Evolve>(
+    sim: &mut S,
+    scene: &DamBreak3d,
+    t_end: f64,
+    is_finite: impl Fn(&S) -> bool,
+    leaked: impl Fn(&S) -> usize,
+    mut density: impl FnMut(&mut S) -> TaskResult<f64>,
+) -> TaskResult<LongRun> {
+    let mut run = LongRun { nan_at: None, leak_at: None, error: None, max_leaked: 0, max_density: 0.0 };
+    for k in 1..=(t_end / 0.1).round() as usize {
+        let big_t = 0.1 * k as f64;
+        if let Err(e) = sim.run_until(scene.physical_time(big_t)) {
+            run.error = Some(format!("T = {big_t:.1}: {e}"));
+            run.nan_at.get_or_insert(sim.steps());
+            break;
+        }
+        if !is_finite(sim) {
+            run.nan_at.get_or_insert(sim.steps());
+            break;
+        }
+        if leaked(sim) > 0 {
+            run.leak_at.get_or_insert(sim.steps());
+        }
+        run.max_leaked = run.max_leaked.max(leaked(sim));
+        run.max_density = run.max_density.max(density(sim)?);
+    }
+    Ok(run)
+}
+
+/// The two checks of a long run: finite values (`detail` when it finished), no leak.
+fn long_run_checks(
+    finite_invariant: String,
+    leak_invariant: &str,
+    run: LongRun,
+    steps: u64,
+    detail: String,
+    leak_detail: String,
+) -> Vec<StressCheck> {
+    vec![
+        StressCheck {
+            invariant: finite_invariant,
+            passed: run.nan_at.is_none(),
+            first_broken_step: run.nan_at,
+            detail: run.error.unwrap_or(detail),
+            measure: run.nan_at.is_none().then_some(StressMeasure::StableSteps(steps)),
+        },
+        StressCheck {
+            invariant: leak_invariant.into(),
+            passed: run.leak_at.is_none() && run.nan_at.is_none(),
+            first_broken_step: run.leak_at,
+            detail: leak_detail,
+            measure: None,
+        },
+    ]
+}
+
 fn stress_dam_break_3d(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
     let scene = scene(ctx.quick);
     let t_end: f64 = if ctx.quick { 3.0 } else { 10.0 };
     let mut sim = scene.build(Wcsph3dParams::default())?;
-    let (mut nan_at, mut leak_at, mut error) = (None, None, None);
-    let (mut max_leaked, mut max_dens) = (0usize, 0.0f64);
-    for k in 1..=(t_end / 0.1).round() as usize {
-        let big_t = 0.1 * k as f64;
-        if let Err(e) = sim.run_until(scene.physical_time(big_t)) {
-            error = Some(format!("T = {big_t:.1}: {e}"));
-            nan_at.get_or_insert(sim.steps());
-            break;
-        }
-        if !sim.is_finite() {
-            nan_at.get_or_insert(sim.steps());
-            break;
-        }
-        if sim.leaked() > 0 {
-            leak_at.get_or_insert(sim.steps());
-        }
-        max_leaked = max_leaked.max(sim.leaked());
-        max_dens = max_dens.max(sim.mean_density_error());
-    }
+    let run = run_long(&mut sim, &scene, t_end, |s| s.is_finite(), |s| s.leaked(), |s| Ok(s.mean_density_error()))?;
     let res = format!("dx = a/{:.0}", 1.0 / scene.dx);
-    Ok(vec![
-        StressCheck {
-            invariant: format!("3D dam break ({res}) to T = {t_end}: values finite"),
-            passed: nan_at.is_none(),
-            first_broken_step: nan_at,
-            detail: error.unwrap_or_else(|| {
-                format!("{} steps, t = {:.3} s, max mean |rho/rho0 - 1| = {max_dens:.4}", sim.steps(), sim.time())
-            }),
-            measure: nan_at.is_none().then_some(StressMeasure::StableSteps(sim.steps())),
-        },
-        StressCheck {
-            invariant: "no fluid particle leaves the tank (checked every 0.1 T)".into(),
-            passed: leak_at.is_none() && nan_at.is_none(),
-            first_broken_step: leak_at,
-            detail: format!("at most {max_leaked} of {} outside", sim.n_fluid()),
-            measure: None,
-        },
-    ])
+    let detail =
+        format!("{} steps, t = {:.3} s, max mean |rho/rho0 - 1| = {:.4}", sim.steps(), sim.time(), run.max_density);
+    let leak_detail = format!("at most {} of {} outside", run.max_leaked, sim.n_fluid());
+    Ok(long_run_checks(
+        format!("3D dam break ({res}) to T = {t_end}: values finite"),
+        "no fluid particle leaves the tank (checked every 0.1 T)",
+        run,
+        sim.steps(),
+        detail,
+        leak_detail,
+    ))
 }
 
 fn bench_dfsph3d_step(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
@@ -333,54 +379,31 @@ fn stress_dfsph3d_dam_break(ctx: &TaskContext) -> TaskResult<Vec<StressCheck>> {
     let scene = scene(ctx.quick);
     let t_end: f64 = if ctx.quick { 3.0 } else { 10.0 };
     let mut sim = scene.build_dfsph(DfsphParams::default_3d())?;
-    let (mut nan_at, mut leak_at, mut error) = (None, None, None);
-    let (mut max_leaked, mut max_comp) = (0usize, 0.0f64);
-    for k in 1..=(t_end / 0.1).round() as usize {
-        let big_t = 0.1 * k as f64;
-        if let Err(e) = sim.run_until(scene.physical_time(big_t)) {
-            error = Some(format!("T = {big_t:.1}: {e}"));
-            nan_at.get_or_insert(sim.steps());
-            break;
-        }
-        if !sim.is_finite() {
-            nan_at.get_or_insert(sim.steps());
-            break;
-        }
-        if sim.leaked() > 0 {
-            leak_at.get_or_insert(sim.steps());
-        }
-        max_leaked = max_leaked.max(sim.leaked());
-        max_comp = max_comp.max(sim.average_compression()?);
-    }
+    let run = run_long(&mut sim, &scene, t_end, |s| s.is_finite(), |s| s.leaked(), |s| Ok(s.average_compression()?))?;
     let res = format!("dx = a/{:.0}", 1.0 / scene.dx);
-    Ok(vec![
-        StressCheck {
-            invariant: format!("3D DFSPH dam break ({res}) to T = {t_end}: values finite"),
-            passed: nan_at.is_none(),
-            first_broken_step: nan_at,
-            detail: error.unwrap_or_else(|| {
-                format!(
-                    "{} steps, t = {:.3} s, {:.2} + {:.2} iterations per step, max mean compression (every 0.1 T) {max_comp:.2e}",
-                    sim.steps(),
-                    sim.time(),
-                    sim.total_iterations() as f64 / sim.steps().max(1) as f64,
-                    sim.total_divergence_iterations() as f64 / sim.steps().max(1) as f64
-                )
-            }),
-            measure: nan_at.is_none().then_some(StressMeasure::StableSteps(sim.steps())),
-        },
-        StressCheck {
-            invariant: "3D DFSPH: no fluid particle leaves the tank (checked every 0.1 T)".into(),
-            passed: leak_at.is_none() && nan_at.is_none(),
-            first_broken_step: leak_at,
-            detail: format!(
-                "at most {max_leaked} of {} outside; {} wall-fallback corrections",
-                sim.n_fluid(),
-                sim.wall_corrections()
-            ),
-            measure: None,
-        },
-    ])
+    let per_step = |n: u64| n as f64 / sim.steps().max(1) as f64;
+    let detail = format!(
+        "{} steps, t = {:.3} s, {:.2} + {:.2} iterations per step, max mean compression (every 0.1 T) {:.2e}",
+        sim.steps(),
+        sim.time(),
+        per_step(sim.total_iterations()),
+        per_step(sim.total_divergence_iterations()),
+        run.max_density
+    );
+    let leak_detail = format!(
+        "at most {} of {} outside; {} wall-fallback corrections",
+        run.max_leaked,
+        sim.n_fluid(),
+        sim.wall_corrections()
+    );
+    Ok(long_run_checks(
+        format!("3D DFSPH dam break ({res}) to T = {t_end}: values finite"),
+        "3D DFSPH: no fluid particle leaves the tank (checked every 0.1 T)",
+        run,
+        sim.steps(),
+        detail,
+        leak_detail,
+    ))
 }
 
 /// The `#[ignore]`d tests behind the README's bars 3D1 and 3D3 (see [`crate::acceptance`]).
