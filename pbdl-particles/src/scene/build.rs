@@ -222,28 +222,14 @@ fn build_dam_break<T: Real>(name: &str, db: &DamBreakScene, init: Option<&InitSt
                     e => field_err(name, sec, e),
                 }
             })?)),
-            DamSolver::Dfsph => Stepper::Dfsph(Box::new(db.geometry.build_dfsph_as::<T>(db.dfsph).map_err(|e| {
-                match e {
-                    Error::Invalid { field, reason }
-                        if [
-                            "h_over_dx",
-                            "cfl",
-                            "dt_max",
-                            "tolerance",
-                            "max_iterations",
-                            "divergence_tolerance",
-                            "max_divergence_iterations",
-                            "omega",
-                            "warm_start",
-                            "nu",
-                        ]
-                        .contains(&field) =>
-                    {
+            DamSolver::Dfsph => {
+                Stepper::Dfsph(Box::new(db.geometry.build_dfsph_as::<T>(db.dfsph).map_err(|e| match e {
+                    Error::Invalid { field, reason } if DFSPH_FIELDS.contains(&field) => {
                         Error::SceneField { scene: name.into(), field: format!("dam_break.dfsph.{field}"), reason }
                     }
                     e => field_err(name, sec, e),
-                }
-            })?)),
+                })?))
+            }
         };
     if let Some(init) = init {
         init.check(2, name)?;

@@ -58,23 +58,24 @@ fn wide<T: Real>(v: &[T]) -> Vec<f64> {
     v.iter().map(|a| a.wide()).collect()
 }
 
-/// `[T; 2]` points flattened and widened to `f64`.
-fn wide2<T: Real>(v: &[[T; 2]]) -> Vec<f64> {
-    v.iter().flat_map(|p| [p[0].wide(), p[1].wide()]).collect()
-}
-
-/// `[T; 3]` points flattened and widened to `f64`.
-fn wide3<T: Real>(v: &[[T; 3]]) -> Vec<f64> {
+/// `[T; D]` points flattened and widened to `f64`.
+fn wide_points<T: Real, const D: usize>(v: &[[T; D]]) -> Vec<f64> {
     v.iter().flat_map(|p| p.map(Real::wide)).collect()
 }
 
-/// A frame of the incompressible solvers with wall particles (IISPH, DFSPH): the fluid
-/// particles with their summation density and uniform mass.
-fn wall_solver_frame<T: Real>(time: f64, x: &[[T; 2]], v: &[[T; 2]], density: &[T], mass: f64) -> Frame {
+/// A frame of the solvers with wall particles (WCSPH, IISPH, DFSPH in 2D and 3D): the fluid
+/// particles with their density and uniform mass.
+fn wall_solver_frame<T: Real, const D: usize>(
+    time: f64,
+    x: &[[T; D]],
+    v: &[[T; D]],
+    density: &[T],
+    mass: f64,
+) -> Frame {
     Frame {
         time,
-        positions: wide2(x),
-        velocities: wide2(v),
+        positions: wide_points(x),
+        velocities: wide_points(v),
         density: wide(density),
         mass: vec![mass; x.len()],
         pressure: None,
@@ -161,17 +162,7 @@ impl<T: Real> Stepper<T> {
             }
             Stepper::Wcsph(s) => {
                 let n = s.n_fluid();
-                Frame {
-                    time: s.time(),
-                    positions: wide2(&s.x[..n]),
-                    velocities: wide2(&s.v),
-                    density: wide(&s.rho[..n]),
-                    mass: vec![s.physics().mass; n],
-                    pressure: None,
-                    internal_energy: None,
-                    smoothing_length: None,
-                    viscosity_alpha: None,
-                }
+                wall_solver_frame(s.time(), &s.x[..n], &s.v, &s.rho[..n], s.physics().mass)
             }
             Stepper::Dfsph(s) => {
                 let density = s.summation_density()?;
@@ -183,32 +174,11 @@ impl<T: Real> Stepper<T> {
             }
             Stepper::Wcsph3d(s) => {
                 let n = s.n_fluid();
-                Frame {
-                    time: s.time(),
-                    positions: wide3(&s.x[..n]),
-                    velocities: wide3(&s.v),
-                    density: wide(&s.rho[..n]),
-                    mass: vec![s.physics().mass; n],
-                    pressure: None,
-                    internal_energy: None,
-                    smoothing_length: None,
-                    viscosity_alpha: None,
-                }
+                wall_solver_frame(s.time(), &s.x[..n], &s.v, &s.rho[..n], s.physics().mass)
             }
             Stepper::Dfsph3d(s) => {
                 let density = s.summation_density()?;
-                let n = s.n_fluid();
-                Frame {
-                    time: s.time(),
-                    positions: wide3(&s.x[..n]),
-                    velocities: wide3(&s.v),
-                    density: wide(&density),
-                    mass: vec![s.mass(); n],
-                    pressure: None,
-                    internal_energy: None,
-                    smoothing_length: None,
-                    viscosity_alpha: None,
-                }
+                wall_solver_frame(s.time(), &s.x[..s.n_fluid()], &s.v, &density, s.mass())
             }
         })
     }
@@ -217,11 +187,11 @@ impl<T: Real> Stepper<T> {
     pub fn fixed_positions(&self) -> Vec<f64> {
         match self {
             Stepper::Sph1d(s) => wide(&s.x[s.n_mobile()..]),
-            Stepper::Wcsph(s) => wide2(&s.x[s.n_fluid()..]),
-            Stepper::Iisph(s) => wide2(&s.x[s.n_fluid()..]),
-            Stepper::Dfsph(s) => wide2(&s.x[s.n_fluid()..]),
-            Stepper::Wcsph3d(s) => wide3(&s.x[s.n_fluid()..]),
-            Stepper::Dfsph3d(s) => wide3(&s.x[s.n_fluid()..]),
+            Stepper::Wcsph(s) => wide_points(&s.x[s.n_fluid()..]),
+            Stepper::Iisph(s) => wide_points(&s.x[s.n_fluid()..]),
+            Stepper::Dfsph(s) => wide_points(&s.x[s.n_fluid()..]),
+            Stepper::Wcsph3d(s) => wide_points(&s.x[s.n_fluid()..]),
+            Stepper::Dfsph3d(s) => wide_points(&s.x[s.n_fluid()..]),
         }
     }
 
