@@ -34,6 +34,11 @@ fn to_vec(t: &Tensor) -> Vec<f64> {
 /// `||D u||_2 h / ||u||_2` with the walls of `walls` (the face at 0 of a non-periodic axis is a
 /// wall at 0; a periodic axis wraps; an outflow face is the stored last face).
 fn rel_divergence(u: &MacField3d, walls: &Walls3d) -> f64 {
+    rel_divergence_where(u, walls, &vec![false; u.grid().cells()])
+}
+
+/// [`rel_divergence`] over the cells not marked in `skip`.
+fn rel_divergence_where(u: &MacField3d, walls: &Walls3d, skip: &[bool]) -> f64 {
     let g = *u.grid();
     let v = to_vec(u.values());
     let n = [g.nx, g.ny, g.nz];
@@ -42,6 +47,9 @@ fn rel_divergence(u: &MacField3d, walls: &Walls3d) -> f64 {
     let h = g.spacing();
     let (mut d2, mut u2) = (0.0, 0.0);
     for m in 0..nc {
+        if skip[m] {
+            continue;
+        }
         let p = [m % n[0], (m / n[0]) % n[1], m / st[2]];
         let mut div = 0.0;
         for a in 0..3 {
@@ -479,45 +487,13 @@ struct InflowRun {
 /// `||D u||_2 h / ||u||_2` over the cells that are neither solid nor inflow cells (an inflow
 /// cell's faces are a wall, the inflow face and its neighbours: not a fluid cell).
 fn fluid_rel_divergence(smoke: &Smoke3d, u: &MacField3d) -> f64 {
-    let g = *u.grid();
-    let v = to_vec(u.values());
-    let n = [g.nx, g.ny, g.nz];
-    let nc = g.cells();
-    let st = [1, n[0], n[0] * n[1]];
-    let h = g.spacing();
-    let walls = smoke.boundaries().walls;
+    let nc = u.grid().cells();
     let skip: Vec<bool> = {
         let f = smoke.fluid_mask().map(to_vec);
         let i = smoke.inflow_mask().map(to_vec);
         (0..nc).map(|m| f.as_ref().is_some_and(|f| f[m] == 0.0) || i.as_ref().is_some_and(|i| i[m] == 1.0)).collect()
     };
-    let (mut d2, mut u2) = (0.0, 0.0);
-    for m in 0..nc {
-        if skip[m] {
-            continue;
-        }
-        let p = [m % n[0], (m / n[0]) % n[1], m / st[2]];
-        let mut div = 0.0;
-        for a in 0..3 {
-            let back = if p[a] > 0 {
-                v[a * nc + m - st[a]]
-            } else if walls.periodic(a) {
-                v[a * nc + m + (n[a] - 1) * st[a]]
-            } else {
-                0.0
-            };
-            div += (v[a * nc + m] - back) / h[a];
-        }
-        d2 += div * div;
-    }
-    for x in &v {
-        u2 += x * x;
-    }
-    if u2 == 0.0 {
-        0.0
-    } else {
-        d2.sqrt() * g.min_spacing() / u2.sqrt()
-    }
+    rel_divergence_where(u, &smoke.boundaries().walls, &skip)
 }
 
 /// The G3D-3 scene: 16^3 unit box, free-slip sides, no-slip floor, an outflow top; a disc
