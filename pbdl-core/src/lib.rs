@@ -25,6 +25,7 @@
 //! | `ndarray_interop` (feature `ndarray`) | candle tensors to and from `ndarray` arrays: buffers moved, views without copies |
 //! | [`matmul`] | [`matmul::matmul`]: the one bounds-checked strided matrix product (gemm, runtime CPU dispatch) behind every hand-written kernel |
 //! | [`io`] | atomic writes, checkpoints (safetensors + JSON sidecar, resume from the latest), `.npy`/`.npz` with typed errors |
+//! | [`vmath`] | branch-free `exp`, `expm1`, `tanh`, `sigmoid` that vectorise, slice maps with runtime AVX2 dispatch (libm's scalar calls dominated the fused LSTM) |
 //! | `viz` (feature `viz`) | colormaps (viridis, blue-white-red), field and quiver PNGs (y up), rollout GIFs, line and Pareto plots with a bundled font |
 //!
 //! Conventions: tensors are candle `Tensor`s laid out `[batch, channel, (z,) y, x]` with x
@@ -52,6 +53,7 @@ pub mod testing;
 pub mod threads;
 pub mod tolerance;
 pub mod train;
+pub mod vmath;
 #[cfg(feature = "viz")]
 pub mod viz;
 

@@ -130,6 +130,16 @@ pub fn matmul<T: Real>(
     }
 }
 
+/// Threads for one product of `m x n x k`: all of the policy's for large ones, none for small
+/// ones (below [`crate::threads::parallel`]'s threshold for `m n k / 64` elements).
+pub fn threads_for(m: usize, n: usize, k: usize) -> Threads {
+    if crate::threads::parallel(m * n * k / 64) {
+        Threads::Rayon(crate::threads::count())
+    } else {
+        Threads::Serial
+    }
+}
+
 /// How a kernel splits `units` independent blocks of work over rayon's threads: into how many
 /// parallel chunks, and with which parallelism inside each matrix product (the threads left
 /// over when there are fewer units than threads, e.g. a single image).

@@ -4,7 +4,14 @@
 ///
 /// Kernels are written once, generic over `Real`; [`crate::op`] dispatches on the dtype.
 pub trait Real:
-    candle_core::WithDType + num_traits::Float + Default + std::iter::Sum + std::fmt::Debug + Send + Sync
+    candle_core::WithDType
+    + num_traits::Float
+    + Default
+    + std::iter::Sum
+    + std::fmt::Debug
+    + Send
+    + Sync
+    + crate::vmath::Elementary
 {
     /// Converts an `f64` constant into this type.
     fn c(v: f64) -> Self {

@@ -15,6 +15,7 @@
 //! | [`rms_norm`] | over the trailing dims, `x / sqrt(mean(x^2) + eps)` | [`RmsNorm`] |
 //! | [`softmax`], [`log_softmax`] | over one chosen dim, shifted by the (detached) max for stability | |
 //! | [`max_pool2d`] | `[batch, channel, y, x]`: max over square windows of any kernel and stride (PyTorch's floor mode), with a backward (candle's is missing or wrong) | |
+//! | [`linear`] | `x W^T + b` in PyTorch's layout as one op (hand-written backward; [`linear_composed`] is the candle version) | |
 //! | [`activation`] | `relu`, `gelu`, `gelu_erf`, `silu`, `elu`, `leaky_relu`, `sigmoid`, `softplus`, `mish`, ... | [`Activation`] |
 //!
 //! The variance is the biased one (divide by `n`), as in PyTorch. Half-precision inputs are
@@ -49,6 +50,8 @@ pub(crate) mod epilogue;
 mod fused;
 pub use fused::{fusion_enabled, with_composed};
 mod layers;
+mod linear;
+pub use linear::{linear, linear_composed};
 mod norm;
 pub mod pool;
 mod softmax;

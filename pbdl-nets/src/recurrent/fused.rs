@@ -15,9 +15,9 @@
 //! First derivatives only: differentiating the backward again is an error.
 
 use candle_core::{Shape, Tensor};
-use pbdl_core::matmul::{matmul, Mat, Threads};
+use pbdl_core::matmul::{matmul, threads_for, Mat};
 use pbdl_core::op::{apply3, apply_kernel3, Kernel3, Op3};
-use pbdl_core::Real;
+use pbdl_core::{vmath, Real};
 use std::sync::{Arc, OnceLock};
 
 /// Sizes of one sequence.
@@ -42,19 +42,6 @@ impl Dims {
         }
         Ok(())
     }
-}
-
-/// Threads for a product of `m x n x k`: all of the policy's for large ones, none for small.
-fn threads_for(m: usize, n: usize, k: usize) -> Threads {
-    if pbdl_core::threads::parallel(m * n * k / 64) {
-        Threads::Rayon(pbdl_core::threads::count())
-    } else {
-        Threads::Serial
-    }
-}
-
-fn sigmoid<T: Real>(v: T) -> T {
-    T::one() / (T::one() + (-v).exp())
 }
 
 /// The forward op; keeps the activated gates `[batch, time, 4 hidden]` (as `f64`, exact for
@@ -103,25 +90,39 @@ impl Kernel3 for LstmSequence {
                 Mat { data: &out[(t - 1) * 2 * h..], rs: 1, cs: time * 2 * h }
             };
             matmul(&mut pre_t, batch, false, w_rows, h_prev_t, (g4, batch, h), T::one(), par);
-            for b in 0..batch {
-                let xrow = &xp[(b * time + t) * g4..][..g4];
-                let arow = &mut acts[(b * time + t) * g4..][..g4];
-                for j in 0..g4 {
-                    let v = pre_t[j * batch + b] + xrow[j];
-                    arow[j] = if (2 * h..3 * h).contains(&j) { v.tanh() } else { sigmoid(v) };
-                }
-                // The previous step's row lies before this one: split instead of copying it.
-                let (done, rest) = out.split_at_mut((b * time + t) * 2 * h);
-                let c_prev =
-                    if t == 0 { &s0[b * 2 * h + h..][..h] } else { &done[(b * time + t - 1) * 2 * h + h..][..h] };
-                let orow = &mut rest[..2 * h];
-                for k in 0..h {
-                    let (i, f, g, o) = (arow[k], arow[h + k], arow[2 * h + k], arow[3 * h + k]);
-                    let c = f * c_prev[k] + i * g;
-                    orow[h + k] = c;
-                    orow[k] = o * c.tanh();
-                }
-            }
+            // Vectorised gate maps (libm's scalar tanh/exp took longer than the products).
+            vmath::with_simd(
+                #[inline(always)]
+                || {
+                    for b in 0..batch {
+                        let xrow = &xp[(b * time + t) * g4..][..g4];
+                        let arow = &mut acts[(b * time + t) * g4..][..g4];
+                        for (j, (a, &x)) in arow.iter_mut().zip(xrow).enumerate() {
+                            *a = pre_t[j * batch + b] + x;
+                        }
+                        // Gates i, f, o through the sigmoid, g through tanh.
+                        let (ifg, o) = arow.split_at_mut(3 * h);
+                        let (i_f, g) = ifg.split_at_mut(2 * h);
+                        i_f.iter_mut().for_each(|v| *v = vmath::sigmoid(*v));
+                        o.iter_mut().for_each(|v| *v = vmath::sigmoid(*v));
+                        g.iter_mut().for_each(|v| *v = vmath::tanh(*v));
+                        // The previous step's row lies before this one: split instead of copying it.
+                        let (done, rest) = out.split_at_mut((b * time + t) * 2 * h);
+                        let c_prev = if t == 0 {
+                            &s0[b * 2 * h + h..][..h]
+                        } else {
+                            &done[(b * time + t - 1) * 2 * h + h..][..h]
+                        };
+                        let (h_out, c_out) = rest[..2 * h].split_at_mut(h);
+                        for k in 0..h {
+                            let (i, f, g, o) = (arow[k], arow[h + k], arow[2 * h + k], arow[3 * h + k]);
+                            let c = f * c_prev[k] + i * g;
+                            c_out[k] = c;
+                            h_out[k] = o * vmath::tanh(c);
+                        }
+                    }
+                },
+            );
         }
         if self.keep {
             // A forward runs once per op instance; a second call would only recompute the same.
@@ -195,24 +196,29 @@ impl Kernel3 for LstmSequenceBackward {
         let w_cols = Mat { data: w, rs: 1, cs: h };
         let par = threads_for(batch, h, g4);
         for t in (0..time).rev() {
-            for b in 0..batch {
-                let row = (b * time + t) * 2 * h;
-                let a = &self.gates[(b * time + t) * g4..][..g4];
-                let c_prev: &[T] = if t == 0 { &s0[b * 2 * h + h..][..h] } else { &y[row - 2 * h + h..][..h] };
-                let d = &mut dxp[(b * time + t) * g4..][..g4];
-                for k in 0..h {
-                    let (i, f, g, o) = (T::c(a[k]), T::c(a[h + k]), T::c(a[2 * h + k]), T::c(a[3 * h + k]));
-                    let c = y[row + h + k];
-                    let tc = c.tanh();
-                    let dh_k = gy[row + k] + dh_t[k * batch + b];
-                    let dc_k = gy[row + h + k] + dc[b * h + k] + dh_k * o * (T::one() - tc * tc);
-                    d[k] = dc_k * g * i * (T::one() - i);
-                    d[h + k] = dc_k * c_prev[k] * f * (T::one() - f);
-                    d[2 * h + k] = dc_k * i * (T::one() - g * g);
-                    d[3 * h + k] = dh_k * tc * o * (T::one() - o);
-                    dc[b * h + k] = dc_k * f;
-                }
-            }
+            vmath::with_simd(
+                #[inline(always)]
+                || {
+                    for b in 0..batch {
+                        let row = (b * time + t) * 2 * h;
+                        let a = &self.gates[(b * time + t) * g4..][..g4];
+                        let c_prev: &[T] = if t == 0 { &s0[b * 2 * h + h..][..h] } else { &y[row - 2 * h + h..][..h] };
+                        let d = &mut dxp[(b * time + t) * g4..][..g4];
+                        for k in 0..h {
+                            let (i, f, g, o) = (T::c(a[k]), T::c(a[h + k]), T::c(a[2 * h + k]), T::c(a[3 * h + k]));
+                            let c = y[row + h + k];
+                            let tc = vmath::tanh(c);
+                            let dh_k = gy[row + k] + dh_t[k * batch + b];
+                            let dc_k = gy[row + h + k] + dc[b * h + k] + dh_k * o * (T::one() - tc * tc);
+                            d[k] = dc_k * g * i * (T::one() - i);
+                            d[h + k] = dc_k * c_prev[k] * f * (T::one() - f);
+                            d[2 * h + k] = dc_k * i * (T::one() - g * g);
+                            d[3 * h + k] = dh_k * tc * o * (T::one() - o);
+                            dc[b * h + k] = dc_k * f;
+                        }
+                    }
+                },
+            );
             // dh_{t-1} = d gates_t W_hh.
             // dh_{t-1}^T = W_hh^T d gates_t^T.
             let d_cols = Mat { data: &dxp[t * g4..], rs: 1, cs: time * g4 };

@@ -198,11 +198,8 @@ impl LstmCell {
             ));
         }
         self.check_state(state, x.dim(0)?)?;
-        let mut gates = x.matmul(&self.weight_ih.t()?)?;
-        if let Some(b) = self.bias()? {
-            gates = gates.broadcast_add(&b)?;
-        }
-        let gates = (gates + state.h.matmul(&self.weight_hh.t()?)?)?;
+        let gates = pbdl_core::nn::linear(x, &self.weight_ih, self.bias()?.as_ref())?;
+        let gates = (gates + pbdl_core::nn::linear(&state.h, &self.weight_hh, None)?)?;
         lstm_update(&gates, &state.c)
     }
 
@@ -235,12 +232,9 @@ impl LstmCell {
             }
             None => self.zero_state(b)?,
         };
-        let g = 4 * self.hidden_size;
-        let mut xp = x.reshape((b * t, self.input_size))?.matmul(&self.weight_ih.t()?)?;
-        if let Some(bias) = self.bias()? {
-            xp = xp.broadcast_add(&bias)?;
-        }
-        let xp = xp.reshape((b, t, g))?;
+        // One op for all steps (candle's matmul of a transposed weight accumulates its gradient
+        // through a strided view: 35 ms instead of 16 at hidden 1024).
+        let xp = pbdl_core::nn::linear(x, &self.weight_ih, self.bias()?.as_ref())?;
         if pbdl_core::nn::fusion_enabled() && x.device().is_cpu() && matches!(x.dtype(), DType::F32 | DType::F64) {
             // The whole recurrence as one op with a hand-written backward through time.
             let h = self.hidden_size;

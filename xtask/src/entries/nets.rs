@@ -162,7 +162,12 @@ fn bench_training_steps(ctx: &TaskContext) -> TaskResult<Vec<BenchRow>> {
     }
 
     // LSTM over 6 latent vectors: forward + backward.
-    let lstm_sizes = if selected("lstm_fwd_bwd") { vec![256, 1024] } else { vec![] };
+    // `PBDL_NETS_LSTM_SIZES=256` (comma-separated) profiles one size.
+    let lstm_sizes: Vec<usize> = match std::env::var("PBDL_NETS_LSTM_SIZES") {
+        Ok(list) => list.split(',').filter_map(|s| s.trim().parse().ok()).collect(),
+        Err(_) => vec![256, 1024],
+    };
+    let lstm_sizes = if selected("lstm_fwd_bwd") { lstm_sizes } else { vec![] };
     for size in lstm_sizes {
         let varmap = VarMap::new();
         let lstm = Lstm::new(LstmConfig::new(size, size), VarBuilder::from_varmap(&varmap, DType::F32, &dev))?;
