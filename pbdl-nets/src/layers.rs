@@ -31,9 +31,9 @@ impl Linear {
         Ok(Self { weight, bias })
     }
 
-    /// `x W^T + b` for `x` of shape `[batch, in]`.
+    /// `x W^T + b` for `x` of shape `[batch, in]` (one op: [`pbdl_core::nn::linear`]).
     pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        Ok(x.matmul(&self.weight.t()?)?.broadcast_add(&self.bias)?)
+        Ok(pbdl_core::nn::linear(x, &self.weight, Some(&self.bias))?)
     }
 }
 

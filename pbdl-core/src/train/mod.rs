@@ -53,6 +53,7 @@
 //! # Ok::<(), pbdl_core::Error>(())
 //! ```
 
+mod adamw_inplace;
 pub mod clip;
 pub mod crash;
 pub mod flat;

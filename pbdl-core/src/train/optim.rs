@@ -320,7 +320,10 @@ struct VarAdamW {
 }
 
 /// Adam with decoupled weight decay: candle-nn's `AdamW`, operation for operation (so the
-/// same numbers bit for bit), with readable state for checkpoints ([`Optim::state`]).
+/// same numbers bit for bit), with readable state for checkpoints ([`Optim::state`]). On the
+/// CPU (`f32`/`f64`) the update runs as three in-place passes per variable computing those
+/// same operations (bit-identical, tested); inside [`crate::nn::with_composed`] and on other
+/// devices as candle-nn's tensor expression.
 #[derive(Debug)]
 pub struct AdamW {
     vars: Vec<VarAdamW>,
@@ -410,7 +413,17 @@ impl Optimizer for AdamW {
             let theta = &var.var;
             let m = &var.first_moment;
             let v = &var.second_moment;
-            if let Some(g) = grads.get(theta) {
+            let Some(g) = grads.get(theta) else { continue };
+            if super::adamw_inplace::applies(theta.as_tensor(), m.as_tensor(), v.as_tensor(), g) {
+                // The same operations in place: three passes instead of ~30 (bit-identical).
+                use super::adamw_inplace::{MomentUpdate, ParamUpdate};
+                m.as_tensor().inplace_op2(g, &MomentUpdate { beta: beta1, squared: false })?;
+                v.as_tensor().inplace_op2(g, &MomentUpdate { beta: beta2, squared: true })?;
+                let update = ParamUpdate { lr, keep: 1f64 - lr_lambda, scale_m, scale_v, eps: self.params.eps };
+                theta.as_tensor().inplace_op3(m.as_tensor(), v.as_tensor(), &update)?;
+                continue;
+            }
+            {
                 let next_m = ((m.as_tensor() * beta1)? + (g * (1.0 - beta1))?)?;
                 let next_v = ((v.as_tensor() * beta2)? + (g.sqr()? * (1.0 - beta2))?)?;
                 let m_hat = (&next_m * scale_m)?;
