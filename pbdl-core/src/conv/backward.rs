@@ -1,7 +1,7 @@
 //! The two adjoints of a convolution, each a differentiable op itself:
 //!
 //! * `grad_input(gy, w)`: the gradient with respect to the input, a transposed convolution
-//!   (`W^T gy` per tile, then col2im);
+//!   (`W^T gy` per tile, then col2im; without col2im on the implicit path, `implicit.rs`);
 //! * `grad_weight(x, gy)`: the gradient with respect to the weight, `sum_b gy_b col(x_b)^T`.
 //!
 //! Both are bilinear, and with `conv` they form a closed family under differentiation:
@@ -12,6 +12,7 @@ use super::depthwise;
 use super::forward::{conv_kernel2, conv_tensor};
 use super::geometry::{expect_shape, Geometry};
 use super::im2col::Plan;
+use super::implicit;
 use crate::matmul::{matmul, split, Mat};
 use crate::op::{apply2, grad_if_tracked, Kernel2, Op2};
 use crate::Real;
@@ -25,6 +26,9 @@ use rayon::prelude::*;
 pub(crate) fn conv_grad_input<T: Real>(g: &Geometry, gy: &[T], w: &[T], gx: &mut [T]) {
     if depthwise::handles(g) {
         return depthwise::grad_input(g, gy, w, gx);
+    }
+    if implicit::handles(g) {
+        return implicit::grad_input(g, gy, w, gx);
     }
     let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
     let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);
@@ -63,6 +67,9 @@ pub(crate) fn conv_grad_input<T: Real>(g: &Geometry, gy: &[T], w: &[T], gx: &mut
 pub(crate) fn conv_grad_weight<T: Real>(g: &Geometry, x: &[T], gy: &[T], gw: &mut [T]) {
     if depthwise::handles(g) {
         return depthwise::grad_weight(g, x, gy, gw);
+    }
+    if implicit::handles(g) {
+        return implicit::grad_weight(g, x, gy, gw);
     }
     let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
     let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);

@@ -1,10 +1,12 @@
-//! The forward convolution: im2col per tile, then one matrix product per channel group.
+//! The forward convolution: im2col per tile, then one matrix product per channel group (or the
+//! depthwise kernels, or for stride 1 and one group the opt-in implicit path of `implicit.rs`).
 
 use super::backward::{grad_input_tensor, grad_weight_tensor};
 use super::depthwise;
 use super::epilogue::Epilogue;
 use super::geometry::{expect_shape, Geometry};
 use super::im2col::Plan;
+use super::implicit;
 use crate::matmul::{matmul, split, Mat};
 use crate::op::{apply2, grad_if_tracked, Kernel2, Op2};
 use crate::Real;
@@ -40,6 +42,9 @@ pub(crate) fn conv_forward_epilogue<T: Real>(
             }
         }
         return;
+    }
+    if implicit::handles(g) {
+        return implicit::forward(g, x, w, epilogue, y);
     }
     let (cin_g, cout_g, kg) = (g.cin_g(), g.cout_g(), g.k_len());
     let (in_len, out_len, ow) = (g.in_len(), g.out_len(), g.output[2]);

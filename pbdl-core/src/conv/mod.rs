@@ -42,6 +42,7 @@ mod epilogue;
 mod forward;
 mod geometry;
 mod im2col;
+mod implicit;
 mod layer;
 mod params;
 mod transpose;
