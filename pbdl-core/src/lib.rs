@@ -53,9 +53,9 @@ pub mod testing;
 pub mod threads;
 pub mod tolerance;
 pub mod train;
-pub mod vmath;
 #[cfg(feature = "viz")]
 pub mod viz;
+pub mod vmath;
 
 pub use error::{Error, Result};
 pub use grad_check::{assert_all_have_grads, assert_varmap_has_grads, check_grad, GradCheckOptions, GradCheckReport};
