@@ -23,6 +23,7 @@
 //! | [`testing`] | for tests that need `../shared` data or published weights: a visible skip that fails in CI ([`testing::skip_or_fail`]) |
 //! | [`threads`] | the one thread policy: [`threads::init`] sets rayon's pool, candle's and gemm's thread count once (`PBDL_THREADS`), [`threads::parallel`] says whether an op is big enough to split (`PBDL_SERIAL_BELOW`) |
 //! | `ndarray_interop` (feature `ndarray`) | candle tensors to and from `ndarray` arrays: buffers moved, views without copies |
+//! | [`malloc`] | [`malloc::keep_freed_memory`]: glibc keeps freed tensor buffers instead of returning them to the OS (called by [`threads::init`]; `PBDL_TUNE_MALLOC=0` to skip) |
 //! | [`matmul`] | [`matmul::matmul`]: the one bounds-checked strided matrix product (gemm, runtime CPU dispatch) behind every hand-written kernel |
 //! | [`io`] | atomic writes, checkpoints (safetensors + JSON sidecar, resume from the latest), `.npy`/`.npz` with typed errors |
 //! | [`vmath`] | branch-free `exp`, `expm1`, `tanh`, `sigmoid` that vectorise, slice maps with runtime AVX2 dispatch (libm's scalar calls dominated the fused LSTM) |
@@ -38,6 +39,7 @@ pub mod error;
 pub mod fft;
 pub mod grad_check;
 pub mod io;
+pub mod malloc;
 pub mod matmul;
 #[cfg(feature = "ndarray")]
 pub mod ndarray_interop;

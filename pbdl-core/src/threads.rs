@@ -18,6 +18,9 @@
 //! | thread count | `PBDL_THREADS` (then `RAYON_NUM_THREADS`) | [`init_with`] | the logical cores |
 //! | serial below (elements or cells of one op) | `PBDL_SERIAL_BELOW` | [`init_with`] | [`DEFAULT_SERIAL_BELOW`] = 192^2 |
 //!
+//! [`init`] also tunes glibc's `malloc` to keep freed tensor buffers ([`crate::malloc`];
+//! `PBDL_TUNE_MALLOC=0` to skip).
+//!
 //! Call [`init`] (or [`init_with`]) at the start of `main` in binaries, examples and benches,
 //! before other threads run (changing the environment while another thread reads it through C's
 //! `getenv` is a data race). Library code and tests need not call it: the first [`policy`] or
@@ -135,6 +138,8 @@ pub fn init_with(wanted: ThreadPolicy) -> Result<ThreadPolicy> {
         return Err(Error::invalid("threads::init_with", "threads", "use at least 1 thread"));
     }
     Ok(*POLICY.get_or_init(|| {
+        // The process-wide memory policy belongs to the same one-time setup (see crate::malloc).
+        crate::malloc::keep_freed_memory();
         // Fails when the global pool exists already (something used rayon first); then that
         // pool's size is what every parallel loop gets, so the policy records it.
         let _ = rayon::ThreadPoolBuilder::new().num_threads(wanted.threads).build_global();
