@@ -5,7 +5,7 @@
 //!
 //! Cases: batch 4, 3x3 kernel, padding 1: 64 channels at 32x32 (TecoGAN's generator), 64 at
 //! 64x64, 128 at 32x64 periodic in x (the WeatherBench ResNet), and 16 and 32 channels at 64x64
-//! (around the implicit path's channel threshold).
+//! (few channels, where one im2col product has the shortest inner dimension).
 //!
 //! For each path it times the forward alone, the forward with the input gradient, with the
 //! weight gradient, and with both (loss `sum(y * r)`, `r` dense); the two gradients' own times

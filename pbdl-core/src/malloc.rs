@@ -5,11 +5,13 @@
 //! `mmap` and returns them to the OS on `free` (and trims the heap top above 128 KiB), so the
 //! next step's buffers come back as fresh pages that the kernel must zero on first touch.
 //! Measured on the 2-core development machine with glibc's defaults against raised
-//! thresholds: a conv 64 -> 64 forward + backward at 4 x 64 x 32 x 32 14.7 vs 8.1 ms, an LSTM
-//! step (batch 16, hidden 1024) 200 vs 100 ms. [`keep_freed_memory`] raises both thresholds
-//! once; [`crate::threads::init`] calls it. Binaries with another global allocator (mimalloc,
-//! as `cargo xtask` and the benches use) are unaffected: glibc's `malloc` then serves only
-//! what bypasses the Rust allocator.
+//! thresholds (`cargo bench -p pbdl-core --bench conv_implicit`, glibc): a conv 64 -> 64
+//! forward + backward at 4 x 64 x 32 x 32 15.1 vs 8.2 ms, 128 -> 128 at 4 x 128 x 32 x 64 81 vs
+//! 47 ms; an LSTM step (batch 16, hidden 1024) 200 vs 100 ms. [`keep_freed_memory`] raises both
+//! thresholds; [`crate::threads::init`] and [`crate::threads::init_with`] call it (library code
+//! that only links pbdl does not). Binaries with another global allocator (mimalloc, as
+//! `cargo xtask` uses) are unaffected: glibc's `malloc` then serves only what bypasses the Rust
+//! allocator.
 //!
 //! The price is resident memory: the heap keeps its high-water mark instead of shrinking after
 //! a large step. `PBDL_TUNE_MALLOC=0` leaves glibc's settings alone.
@@ -42,10 +44,13 @@ pub fn keep_freed_memory() -> bool {
 fn tune() -> bool {
     // SAFETY: mallopt only changes allocator parameters; both values are in glibc's documented
     // ranges (it returns 0 and changes nothing otherwise).
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD as libc::c_int) == 1
-            && libc::mallopt(libc::M_TRIM_THRESHOLD, TRIM_THRESHOLD as libc::c_int) == 1
-    }
+    let (mmap, trim) = unsafe {
+        (
+            libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD as libc::c_int),
+            libc::mallopt(libc::M_TRIM_THRESHOLD, TRIM_THRESHOLD as libc::c_int),
+        )
+    };
+    mmap == 1 && trim == 1
 }
 
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]

@@ -18,8 +18,9 @@
 //! | thread count | `PBDL_THREADS` (then `RAYON_NUM_THREADS`) | [`init_with`] | the logical cores |
 //! | serial below (elements or cells of one op) | `PBDL_SERIAL_BELOW` | [`init_with`] | [`DEFAULT_SERIAL_BELOW`] = 192^2 |
 //!
-//! [`init`] also tunes glibc's `malloc` to keep freed tensor buffers ([`crate::malloc`];
-//! `PBDL_TUNE_MALLOC=0` to skip).
+//! [`init`] and [`init_with`] also tune glibc's `malloc` to keep freed tensor buffers
+//! ([`crate::malloc`]; `PBDL_TUNE_MALLOC=0` to skip); the lazy initialisation of library code
+//! does not.
 //!
 //! Call [`init`] (or [`init_with`]) at the start of `main` in binaries, examples and benches,
 //! before other threads run (changing the environment while another thread reads it through C's
@@ -123,23 +124,41 @@ static POLICY: OnceLock<ThreadPolicy> = OnceLock::new();
 /// [`Error::InvalidArgument`] when `PBDL_THREADS`, `RAYON_NUM_THREADS` or `PBDL_SERIAL_BELOW`
 /// holds something other than a number; nothing is set then.
 pub fn init() -> Result<ThreadPolicy> {
-    if let Some(p) = POLICY.get() {
-        return Ok(*p);
-    }
-    init_with(ThreadPolicy::from_env()?)
+    let policy = match POLICY.get() {
+        Some(p) => *p,
+        None => install(ThreadPolicy::from_env()?)?,
+    };
+    tune_malloc_once();
+    Ok(policy)
 }
 
 /// Initialises the policy with `wanted` (the API override of the environment) and returns the
 /// policy in effect: `wanted` if this is the first initialisation and rayon's global pool could
 /// still be built with `wanted.threads`; otherwise the policy already fixed (or the pool's
-/// actual thread count), which the caller can compare.
+/// actual thread count), which the caller can compare. Also tunes glibc's `malloc` (see
+/// [`crate::malloc`]), as [`init`] does.
 pub fn init_with(wanted: ThreadPolicy) -> Result<ThreadPolicy> {
+    let policy = install(wanted)?;
+    tune_malloc_once();
+    Ok(policy)
+}
+
+/// The explicit initialisations ([`init`], [`init_with`]) also set the process's memory policy;
+/// the lazy one of library code ([`policy`]) does not: a program that only links pbdl keeps
+/// its allocator settings.
+fn tune_malloc_once() {
+    static TUNED: std::sync::Once = std::sync::Once::new();
+    TUNED.call_once(|| {
+        crate::malloc::keep_freed_memory();
+    });
+}
+
+/// Fixes the thread policy (once per process) and returns the one in effect.
+fn install(wanted: ThreadPolicy) -> Result<ThreadPolicy> {
     if wanted.threads == 0 {
         return Err(Error::invalid("threads::init_with", "threads", "use at least 1 thread"));
     }
     Ok(*POLICY.get_or_init(|| {
-        // The process-wide memory policy belongs to the same one-time setup (see crate::malloc).
-        crate::malloc::keep_freed_memory();
         // Fails when the global pool exists already (something used rayon first); then that
         // pool's size is what every parallel loop gets, so the policy records it.
         let _ = rayon::ThreadPoolBuilder::new().num_threads(wanted.threads).build_global();
@@ -152,19 +171,19 @@ pub fn init_with(wanted: ThreadPolicy) -> Result<ThreadPolicy> {
     }))
 }
 
-/// The policy in effect, initialised from the environment on first use. An unreadable
-/// environment value falls back to the defaults here (with one message on stderr); call
-/// [`init`] in `main` to get it as an error instead.
+/// The policy in effect, initialised from the environment on first use (without the memory
+/// policy of [`init`]). An unreadable environment value falls back to the defaults here (with
+/// one message on stderr); call [`init`] in `main` to get it as an error instead.
 pub fn policy() -> ThreadPolicy {
     if let Some(p) = POLICY.get() {
         return *p;
     }
-    match init() {
+    match ThreadPolicy::from_env().and_then(install) {
         Ok(p) => p,
         Err(e) => {
             eprintln!("pbdl: {e}; using the default thread policy");
             let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-            init_with(ThreadPolicy { threads: cores, serial_below: DEFAULT_SERIAL_BELOW })
+            install(ThreadPolicy { threads: cores, serial_below: DEFAULT_SERIAL_BELOW })
                 .unwrap_or(ThreadPolicy { threads: 1, serial_below: DEFAULT_SERIAL_BELOW })
         }
     }

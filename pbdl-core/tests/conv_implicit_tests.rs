@@ -22,6 +22,8 @@ use common::{randn, rel_diff, F32_TOL, F64_TOL, GRAD_TOL};
 fn implicit_on() {
     static ON: Once = Once::new();
     ON.call_once(|| std::env::set_var("PBDL_CONV_IMPLICIT", "1"));
+    // Otherwise every comparison below would be im2col against im2col.
+    assert!(pbdl_core::conv::implicit_path_enabled(), "the implicit path did not switch on");
 }
 
 /// Output and gradients (input, weight, bias) under the loss `sum(y * r)`, `r` seeded.

@@ -64,3 +64,39 @@ fn shape_errors_name_the_layout() {
     let err = linear(&x, &w, Some(&bad_b)).unwrap_err().to_string();
     assert!(err.contains("bias"), "{err}");
 }
+
+#[test]
+fn constant_input_rank_one_and_zero_outputs() {
+    // x without gradient (data): only dW and db are formed; they equal the composed ones.
+    let (x, w, b) = inputs(DType::F64);
+    let (wv, bv) = (Var::from_tensor(&w).unwrap(), Var::from_tensor(&b).unwrap());
+    let grads_of = |composed: bool| {
+        let run = || {
+            let y = linear(&x, wv.as_tensor(), Some(bv.as_tensor())).unwrap();
+            let g = y.sqr().unwrap().sum_all().unwrap().backward().unwrap();
+            let get = |v: &Var| g.get(v.as_tensor()).unwrap().flatten_all().unwrap().to_vec1::<f64>().unwrap();
+            (get(&wv), get(&bv))
+        };
+        if composed {
+            with_composed(run)
+        } else {
+            run()
+        }
+    };
+    let (fused, composed) = (grads_of(false), grads_of(true));
+    for (a, c) in fused.0.iter().chain(&fused.1).zip(composed.0.iter().chain(&composed.1)) {
+        assert!((a - c).abs() <= 1e-12 * c.abs().max(1.0), "{a} vs {c}");
+    }
+    // A single vector is one row, on both paths.
+    let v = Tensor::new(&[1.0f64, -2.0, 0.5, 3.0, 0.0], &Device::Cpu).unwrap();
+    let y1 = linear(&v, &w, Some(&b)).unwrap().to_vec1::<f64>().unwrap();
+    let y2 = with_composed(|| linear(&v, &w, Some(&b))).unwrap().to_vec1::<f64>().unwrap();
+    assert_eq!(y1.len(), 6);
+    for (p, q) in y1.iter().zip(&y2) {
+        assert!((p - q).abs() < 1e-12, "{p} vs {q}");
+    }
+    // No outputs: an empty result, not a panic.
+    let w0 = Tensor::zeros((0, 5), DType::F64, &Device::Cpu).unwrap();
+    let b0 = Tensor::zeros(0, DType::F64, &Device::Cpu).unwrap();
+    assert_eq!(linear(&x, &w0, Some(&b0)).unwrap().dims(), &[3, 4, 0]);
+}

@@ -126,6 +126,14 @@ pub fn conv_im2col<const N: usize>(
     conv_with(x, weight, bias, params, Some(false), Activation::Identity)
 }
 
+/// Whether the opt-in implicit-GEMM path for stride-1 single-group convolutions is switched
+/// on in this process (`PBDL_CONV_IMPLICIT=1`, read once); for tests that must know which
+/// path ran.
+#[doc(hidden)]
+pub fn implicit_path_enabled() -> bool {
+    implicit::enabled()
+}
+
 /// Whether [`conv`] runs the direct depthwise kernels for an input of shape `x`, a weight of
 /// shape `w` and `params` (the shapes must be valid), rather than im2col.
 #[doc(hidden)]

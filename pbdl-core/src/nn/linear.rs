@@ -4,8 +4,9 @@
 //! transposed weight goes through a strided view: its gradient is accumulated element by element
 //! through candle's strided binary map, and with the transposes and the bias sum the input
 //! projection of a 1024-unit LSTM took 35 ms forward + backward where its three matrix products
-//! take 16 ms. Here the forward is one product, the backward writes `dW` in `W`'s own layout,
-//! `dx` and the bias gradient from the same pass, in one buffer.
+//! take 16 ms. Here the forward is one product; the backward is one kernel that writes `dW` in
+//! `W`'s own layout, the bias gradient and (only when the input tracks gradients) `dx` into one
+//! buffer, of which the three gradients are views.
 //!
 //! First derivatives only: differentiating the gradients again is an error; inside
 //! [`crate::nn::with_composed`] the composed candle ops run instead (second derivatives, A/B
@@ -87,7 +88,8 @@ impl Kernel3 for LinearBias {
         y: &mut [T],
     ) -> candle_core::Result<()> {
         self.0.product(x, w, y);
-        for row in y.chunks_exact_mut(self.0.outputs) {
+        // `max(1)`: no rows to add to when there are no outputs (chunks_exact(0) panics).
+        for row in y.chunks_exact_mut(self.0.outputs.max(1)) {
             row.iter_mut().zip(b).for_each(|(v, &bj)| *v += bj);
         }
         Ok(())
@@ -141,9 +143,12 @@ fn grads(
     gy: &Tensor,
     with_bias: bool,
 ) -> candle_core::Result<(Tensor, Tensor, Option<Tensor>)> {
-    let packed = apply_kernel3(gy, x, w, LinearGrads { dims: d, with_bias })?;
-    let (n_x, n_w) = (d.rows * d.inputs, d.outputs * d.inputs);
-    let dx = packed.narrow(0, 0, n_x)?.reshape(x.shape())?;
+    // An input that tracks no gradient (data fed to the first layer) gets no dx product.
+    let with_dx = x.track_op();
+    let packed = apply_kernel3(gy, x, w, LinearGrads { dims: d, with_bias, with_dx })?;
+    let n_x = if with_dx { d.rows * d.inputs } else { 0 };
+    let n_w = d.outputs * d.inputs;
+    let dx = if with_dx { packed.narrow(0, 0, n_x)?.reshape(x.shape())? } else { crate::op::zeros_like(x)? };
     let dw = packed.narrow(0, n_x, n_w)?.reshape(w.shape())?;
     let db = with_bias.then(|| packed.narrow(0, n_x + n_w, d.outputs)).transpose()?;
     Ok((dx, dw, db))
@@ -154,6 +159,8 @@ fn grads(
 struct LinearGrads {
     dims: Dims,
     with_bias: bool,
+    /// Whether `dx` is computed (else the buffer starts with `dW`).
+    with_dx: bool,
 }
 
 impl Kernel3 for LinearGrads {
@@ -163,7 +170,8 @@ impl Kernel3 for LinearGrads {
 
     fn output_shape(&self, _gy: &Shape, _x: &Shape, _w: &Shape) -> candle_core::Result<Shape> {
         let Dims { rows, inputs, outputs } = self.dims;
-        Ok(Shape::from(rows * inputs + outputs * inputs + if self.with_bias { outputs } else { 0 }))
+        let n_x = if self.with_dx { rows * inputs } else { 0 };
+        Ok(Shape::from(n_x + outputs * inputs + if self.with_bias { outputs } else { 0 }))
     }
 
     fn forward<T: Real>(
@@ -177,20 +185,22 @@ impl Kernel3 for LinearGrads {
         out: &mut [T],
     ) -> candle_core::Result<()> {
         let Dims { rows, inputs, outputs } = self.dims;
-        let (dx, rest) = out.split_at_mut(rows * inputs);
+        let (dx, rest) = out.split_at_mut(if self.with_dx { rows * inputs } else { 0 });
         let (dw, db) = rest.split_at_mut(outputs * inputs);
-        // dx = gy W
-        let gy_rows = Mat::row_major(gy, outputs);
-        matmul(
-            dx,
-            inputs,
-            false,
-            gy_rows,
-            Mat::row_major(w, inputs),
-            (rows, inputs, outputs),
-            T::one(),
-            threads_for(rows, inputs, outputs),
-        );
+        if self.with_dx {
+            // dx = gy W
+            let gy_rows = Mat::row_major(gy, outputs);
+            matmul(
+                dx,
+                inputs,
+                false,
+                gy_rows,
+                Mat::row_major(w, inputs),
+                (rows, inputs, outputs),
+                T::one(),
+                threads_for(rows, inputs, outputs),
+            );
+        }
         // dW = gy^T x, in W's layout
         let gy_t = Mat { data: gy, rs: 1, cs: outputs };
         matmul(
@@ -204,7 +214,7 @@ impl Kernel3 for LinearGrads {
             threads_for(outputs, inputs, rows),
         );
         if self.with_bias {
-            for row in gy.chunks_exact(outputs) {
+            for row in gy.chunks_exact(outputs.max(1)) {
                 db.iter_mut().zip(row).for_each(|(s, &g)| *s += g);
             }
         }
@@ -244,7 +254,8 @@ pub fn linear(x: &Tensor, w: &Tensor, b: Option<&Tensor>) -> crate::Result<Tenso
 
 /// [`linear`] composed from candle ops (differentiable to any order).
 pub fn linear_composed(x: &Tensor, w: &Tensor, b: Option<&Tensor>) -> crate::Result<Tensor> {
-    let y = x.broadcast_matmul(&w.t()?)?;
+    // candle's matmul needs rank >= 2: a single vector is one row.
+    let y = if x.rank() == 1 { x.unsqueeze(0)?.matmul(&w.t()?)?.squeeze(0)? } else { x.broadcast_matmul(&w.t()?)? };
     Ok(match b {
         Some(b) => y.broadcast_add(b)?,
         None => y,

@@ -169,3 +169,46 @@ pub(crate) fn applies(var: &Tensor, m: &Tensor, v: &Tensor, g: &Tensor) -> bool 
         && g.dtype() == var.dtype()
         && g.dims() == var.dims()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{DType, Device};
+
+    /// The kernels themselves (not the optimiser's dispatch) against candle's expression for
+    /// one update, bit for bit, with `-0.0` and exact-zero entries.
+    #[test]
+    fn kernels_equal_candles_expression() {
+        let dev = Device::Cpu;
+        for dtype in [DType::F32, DType::F64] {
+            let t = |v: &[f64]| Tensor::new(v, &dev).unwrap().to_dtype(dtype).unwrap();
+            let (theta, m, v, g) = (
+                t(&[0.5, -0.0, 1.5, -2.0, 0.0]),
+                t(&[0.1, 0.0, -0.3, 0.2, -0.0]),
+                t(&[0.01, 0.0, 0.04, 0.09, 0.0]),
+                t(&[0.0, 1.0, -0.0, 3.0, -2.5]),
+            );
+            let (b1, b2, lr, wd, eps, step) = (0.9, 0.999, 1e-2, 0.1, 1e-8, 3);
+            let (sm, sv) = (1.0 / (1.0 - f64::powi(b1, step)), 1.0 / (1.0 - f64::powi(b2, step)));
+            // candle-nn 0.11's AdamW::step.
+            let next_m = ((&m * b1).unwrap() + (&g * (1.0 - b1)).unwrap()).unwrap();
+            let next_v = ((&v * b2).unwrap() + (g.sqr().unwrap() * (1.0 - b2)).unwrap()).unwrap();
+            let adjusted =
+                ((&next_m * sm).unwrap() / ((&next_v * sv).unwrap().sqrt().unwrap() + eps).unwrap()).unwrap();
+            let want = ((&theta * (1.0 - lr * wd)).unwrap() - (adjusted * lr).unwrap()).unwrap();
+            assert!(applies(&theta, &m, &v, &g), "the in-place path must apply to CPU {dtype:?}");
+            let (mi, vi, thi) = (m.copy().unwrap(), v.copy().unwrap(), theta.copy().unwrap());
+            mi.inplace_op2(&g, &MomentUpdate { beta: b1, squared: false }).unwrap();
+            vi.inplace_op2(&g, &MomentUpdate { beta: b2, squared: true }).unwrap();
+            let update = ParamUpdate { lr, keep: 1.0 - lr * wd, scale_m: sm, scale_v: sv, eps };
+            thi.inplace_op3(&mi, &vi, &update).unwrap();
+            let bits = |t: &Tensor| -> Vec<u64> {
+                t.to_dtype(DType::F64).unwrap().to_vec1::<f64>().unwrap().into_iter().map(f64::to_bits).collect()
+            };
+            assert_eq!(bits(&mi), bits(&next_m), "{dtype:?} first moment");
+            assert_eq!(bits(&vi), bits(&next_v), "{dtype:?} second moment");
+            assert_eq!(bits(&thi), bits(&want), "{dtype:?} variable");
+            assert_ne!(bits(&thi), bits(&theta));
+        }
+    }
+}
