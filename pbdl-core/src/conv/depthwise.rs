@@ -53,16 +53,17 @@ pub(crate) fn handles(g: &Geometry) -> bool {
 
 /// The padded plane of one channel: sizes and, per axis, the source index of each padded
 /// position ([`OUTSIDE`] where zero padding applies).
-struct Padding {
+pub(super) struct Padding {
     input: [usize; 3],
     pad: [usize; 3],
-    dims: [usize; 3],
+    /// Padded spatial size `[Dp, Hp, Wp]`.
+    pub(super) dims: [usize; 3],
     /// `maps[a][i]`: input index of padded position `i` along axis `a`, or [`OUTSIDE`].
     maps: [Vec<usize>; 3],
 }
 
 impl Padding {
-    fn new(g: &Geometry) -> Self {
+    pub(super) fn new(g: &Geometry) -> Self {
         let map = |a: usize| -> Vec<usize> {
             let (n, p) = (g.input[a] as isize, g.padding[a] as isize);
             (0..n + 2 * p)
@@ -82,12 +83,13 @@ impl Padding {
         Padding { input: g.input, pad: g.padding, dims, maps: [map(0), map(1), map(2)] }
     }
 
-    fn len(&self) -> usize {
+    /// Elements of one padded channel.
+    pub(super) fn len(&self) -> usize {
         self.dims.iter().product()
     }
 
     /// Fills the padded plane `xp` from the channel `x`.
-    fn fill<T: Real>(&self, x: &[T], xp: &mut [T]) {
+    pub(super) fn fill<T: Real>(&self, x: &[T], xp: &mut [T]) {
         let [_, h, w] = self.input;
         let [_, ph, pw] = self.dims;
         let px = self.pad[2];
@@ -108,7 +110,7 @@ impl Padding {
 
     /// The adjoint of [`Padding::fill`]: adds every padded value to the input position it was
     /// read from.
-    fn fold<T: Real>(&self, xp: &[T], gx: &mut [T]) {
+    pub(super) fn fold<T: Real>(&self, xp: &[T], gx: &mut [T]) {
         let [_, h, w] = self.input;
         let [_, ph, pw] = self.dims;
         let px = self.pad[2];

@@ -22,16 +22,13 @@
 //!
 //! The path is off unless `PBDL_CONV_IMPLICIT=1` (see [`enabled`] for why).
 
-use super::depthwise;
+use super::depthwise::{self, Padding};
 use super::epilogue::Epilogue;
 use super::geometry::Geometry;
 use crate::matmul::{matmul, split, Mat};
 use crate::Real;
 use rayon::prelude::*;
 use std::sync::OnceLock;
-
-/// Marks a padded position with no source (zero padding).
-const OUTSIDE: usize = usize::MAX;
 
 /// Target bytes of one tile's working set (input window and wide output, all channels).
 const TILE_BYTES: usize = 256 << 10;
@@ -71,14 +68,13 @@ struct Tile {
     out: usize,
 }
 
-/// The padded layout of one convolution: sizes, source maps and tap offsets.
+/// The padded layout of one convolution: the padding (shared with the depthwise kernels), tap
+/// offsets and tiles.
 struct Layout {
-    input: [usize; 3],
-    pad: [usize; 3],
+    padding: Padding,
     /// Padded spatial size `[Dp, Hp, Wp]`.
     dims: [usize; 3],
-    /// `maps[a][i]`: input index of padded position `i` along axis `a`, or [`OUTSIDE`].
-    maps: [Vec<usize>; 3],
+    input: [usize; 3],
     /// Offset in a padded channel of each kernel tap, in weight order `(tz, ty, tx)`.
     offsets: Vec<usize>,
     output: [usize; 3],
@@ -88,22 +84,8 @@ struct Layout {
 
 impl Layout {
     fn new<T>(g: &Geometry) -> Self {
-        let map = |a: usize| -> Vec<usize> {
-            let (n, p) = (g.input[a] as isize, g.padding[a] as isize);
-            (0..n + 2 * p)
-                .map(|i| {
-                    let s = i - p;
-                    if (0..n).contains(&s) {
-                        s as usize
-                    } else if g.circular[a] {
-                        s.rem_euclid(n) as usize
-                    } else {
-                        OUTSIDE
-                    }
-                })
-                .collect()
-        };
-        let dims = [0, 1, 2].map(|a| g.input[a] + 2 * g.padding[a]);
+        let padding = Padding::new(g);
+        let dims = padding.dims;
         let [kd, kh, kw] = g.kernel;
         let [dd, dh, dw] = g.dilation;
         let mut offsets = Vec::with_capacity(kd * kh * kw);
@@ -116,15 +98,7 @@ impl Layout {
         }
         let row_bytes = (g.c_in + g.c_out) * dims[2] * std::mem::size_of::<T>();
         let tile_rows = (TILE_BYTES / row_bytes.max(1)).clamp(1, g.output[1].max(1));
-        Layout {
-            input: g.input,
-            pad: g.padding,
-            dims,
-            maps: [map(0), map(1), map(2)],
-            offsets,
-            output: g.output,
-            tile_rows,
-        }
+        Layout { padding, dims, input: g.input, offsets, output: g.output, tile_rows }
     }
 
     /// Elements of one padded channel.
@@ -152,53 +126,18 @@ impl Layout {
 
     /// Fills the padded channels `xp` from the input channels `x` (`channels` of each).
     fn fill<T: Real>(&self, x: &[T], channels: usize, xp: &mut [T]) {
-        let [_, h, w] = self.input;
-        let [_, hp, wp] = self.dims;
-        let px = self.pad[2];
-        let in_len = self.input.iter().product::<usize>();
+        let (in_len, plane) = (self.input.iter().product::<usize>(), self.plane());
         for c in 0..channels {
-            let xc = &x[c * in_len..][..in_len];
-            for (r, dst) in xp[c * self.plane()..][..self.plane()].chunks_exact_mut(wp).enumerate() {
-                let (sz, sy) = (self.maps[0][r / hp], self.maps[1][r % hp]);
-                if sz == OUTSIDE || sy == OUTSIDE {
-                    dst.fill(T::zero());
-                    continue;
-                }
-                let src = &xc[(sz * h + sy) * w..][..w];
-                dst[px..px + w].copy_from_slice(src);
-                for j in (0..px).chain(px + w..wp) {
-                    let s = self.maps[2][j];
-                    dst[j] = if s == OUTSIDE { T::zero() } else { src[s] };
-                }
-            }
+            self.padding.fill(&x[c * in_len..][..in_len], &mut xp[c * plane..][..plane]);
         }
     }
 
     /// The adjoint of [`Layout::fill`]: adds every padded value to the input position it was
     /// read from (`gx` must hold the running sum, zero at first).
     fn fold<T: Real>(&self, xp: &[T], channels: usize, gx: &mut [T]) {
-        let [_, h, w] = self.input;
-        let [_, hp, wp] = self.dims;
-        let px = self.pad[2];
-        let in_len = self.input.iter().product::<usize>();
+        let (in_len, plane) = (self.input.iter().product::<usize>(), self.plane());
         for c in 0..channels {
-            let gc = &mut gx[c * in_len..][..in_len];
-            for (r, src) in xp[c * self.plane()..][..self.plane()].chunks_exact(wp).enumerate() {
-                let (sz, sy) = (self.maps[0][r / hp], self.maps[1][r % hp]);
-                if sz == OUTSIDE || sy == OUTSIDE {
-                    continue;
-                }
-                let dst = &mut gc[(sz * h + sy) * w..][..w];
-                for (d, &v) in dst.iter_mut().zip(&src[px..px + w]) {
-                    *d += v;
-                }
-                for j in (0..px).chain(px + w..wp) {
-                    let s = self.maps[2][j];
-                    if s != OUTSIDE {
-                        dst[s] += src[j];
-                    }
-                }
-            }
+            self.padding.fold(&xp[c * plane..][..plane], &mut gx[c * in_len..][..in_len]);
         }
     }
 
