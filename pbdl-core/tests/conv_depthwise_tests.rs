@@ -11,23 +11,7 @@ use pbdl_core::conv::{
 use pbdl_core::{check_grad, GradCheckOptions};
 
 mod common;
-use common::{randn, rel_diff, F32_TOL, F64_TOL, GRAD_TOL};
-
-/// Output and gradients (input, weight, bias) under the loss `sum(y * r)`, `r` seeded.
-fn value_and_grads<const N: usize>(
-    f: fn(&Tensor, &Tensor, Option<&Tensor>, &ConvParams<N>) -> pbdl_core::Result<Tensor>,
-    x: &Tensor,
-    w: &Tensor,
-    b: &Tensor,
-    p: &ConvParams<N>,
-) -> [Tensor; 4] {
-    let (xv, wv, bv) = (Var::from_tensor(x).unwrap(), Var::from_tensor(w).unwrap(), Var::from_tensor(b).unwrap());
-    let y = f(xv.as_tensor(), wv.as_tensor(), Some(bv.as_tensor()), p).unwrap();
-    let r = randn(y.dims(), y.dtype(), 99);
-    let grads = (&y * &r).unwrap().sum_all().unwrap().backward().unwrap();
-    let get = |v: &Var| grads.get(v.as_tensor()).expect("missing gradient").clone();
-    [y, get(&xv), get(&wv), get(&bv)]
-}
+use common::{randn, rel_diff, value_and_grads, F32_TOL, F64_TOL, GRAD_TOL};
 
 /// Asserts that `conv` runs the direct kernel for the case and agrees with the im2col path in
 /// the output and the three gradients.

@@ -15,7 +15,7 @@ use pbdl_core::{check_grad, GradCheckOptions};
 use std::sync::Once;
 
 mod common;
-use common::{randn, rel_diff, F32_TOL, F64_TOL, GRAD_TOL};
+use common::{randn, rel_diff, value_and_grads, F32_TOL, F64_TOL, GRAD_TOL};
 
 /// Switches the implicit path on for this test process. Every test calls it first, so the
 /// variable is set (once, under `Once`) before any convolution reads it.
@@ -24,22 +24,6 @@ fn implicit_on() {
     ON.call_once(|| std::env::set_var("PBDL_CONV_IMPLICIT", "1"));
     // Otherwise every comparison below would be im2col against im2col.
     assert!(pbdl_core::conv::implicit_path_enabled(), "the implicit path did not switch on");
-}
-
-/// Output and gradients (input, weight, bias) under the loss `sum(y * r)`, `r` seeded.
-fn value_and_grads<const N: usize>(
-    f: fn(&Tensor, &Tensor, Option<&Tensor>, &ConvParams<N>) -> pbdl_core::Result<Tensor>,
-    x: &Tensor,
-    w: &Tensor,
-    b: &Tensor,
-    p: &ConvParams<N>,
-) -> [Tensor; 4] {
-    let (xv, wv, bv) = (Var::from_tensor(x).unwrap(), Var::from_tensor(w).unwrap(), Var::from_tensor(b).unwrap());
-    let y = f(xv.as_tensor(), wv.as_tensor(), Some(bv.as_tensor()), p).unwrap();
-    let r = randn(y.dims(), y.dtype(), 99);
-    let grads = (&y * &r).unwrap().sum_all().unwrap().backward().unwrap();
-    let get = |v: &Var| grads.get(v.as_tensor()).expect("missing gradient").clone();
-    [y, get(&xv), get(&wv), get(&bv)]
 }
 
 /// Asserts that `conv` (implicit path for these shapes) and `conv_im2col` agree in the output
