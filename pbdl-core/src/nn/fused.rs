@@ -176,10 +176,20 @@ impl Kernel1 for GeluErf {
         }
         let mut d = vec![T::zero(); x.len()];
         let run = |((y, d), x): ((&mut [T], &mut [T]), &[T])| {
+            // The density factor first, in a loop that vectorises (vmath's exp, not libm's
+            // scalar call); erf stays libm's, so the values equal candle's.
+            crate::vmath::with_simd(
+                #[inline(always)]
+                || {
+                    for (d, &x) in d.iter_mut().zip(x) {
+                        *d = x * crate::vmath::exp(-(x * x) * half) * r2pi;
+                    }
+                },
+            );
             for ((y, d), &x) in y.iter_mut().zip(d.iter_mut()).zip(x) {
                 let cdf = (erf(x * r2) + one) * half;
                 *y = cdf * x;
-                *d = cdf + x * (-(x * x) * half).exp() * r2pi;
+                *d += cdf;
             }
         };
         if parallel(y.len(), 2 * CHUNK) {
