@@ -80,24 +80,27 @@ fn assert_crossing_below_half_dx(label: &str, depth_in_dx: f64) {
     assert!(depth_in_dx < 0.5, "{label}: deepest wall crossing {depth_in_dx:.3} dx >= 0.5 dx");
 }
 
-/// What a W2 run reports besides the leak count.
-struct WallReport {
-    steps: u64,
-    corrections: u64,
-    depth_in_dx: f64,
-}
-
-/// Runs one solver's W2 check: `step_to(t)` advances to `t` and returns the leak count (after
-/// asserting a finite state); `report()` gives the fallback's counts at the end.
-fn check_w2(label: &str, scene: &DamBreak, step_to: impl FnMut(f64) -> usize, report: impl FnOnce() -> WallReport) {
-    let worst = leak_history(scene, step_to);
-    let r = report();
-    eprintln!(
-        "W2 {label}: {} steps, max leaked {worst}, fallback corrections {}, deepest {:.3} dx",
-        r.steps, r.corrections, r.depth_in_dx
-    );
-    assert_eq!(worst, 0);
-    assert_crossing_below_half_dx(label, r.depth_in_dx);
+/// Runs one solver's W2 check on `$sim` (built for `$scene`): advances it to T = 10 with a
+/// finite state, asserts that no particle leaked and that the deepest wall crossing before the
+/// fallback stays below half a spacing (`$dx` is the solver's spacing, read from `$sim`).
+/// A macro because the three solvers share these methods by name, not through a trait.
+macro_rules! check_w2 {
+    ($label:expr, $scene:expr, $sim:ident, $dx:expr) => {{
+        let worst = leak_history(&$scene, |t| {
+            $sim.run_until(t).unwrap();
+            assert!($sim.is_finite());
+            $sim.leaked()
+        });
+        let depth_in_dx = $sim.max_penetration() / $dx;
+        eprintln!(
+            "W2 {}: {} steps, max leaked {worst}, fallback corrections {}, deepest {depth_in_dx:.3} dx",
+            $label,
+            $sim.steps(),
+            $sim.wall_corrections()
+        );
+        assert_eq!(worst, 0);
+        assert_crossing_below_half_dx($label, depth_in_dx);
+    }};
 }
 
 /// Bar W2 for WCSPH (defaults, dx = a/20).
@@ -105,26 +108,9 @@ fn check_w2(label: &str, scene: &DamBreak, step_to: impl FnMut(f64) -> usize, re
 #[ignore = "bar W2: WCSPH to T = 10 (release: a few seconds)"]
 fn w2_wcsph_no_particle_leaves_the_tank_to_t10() {
     let scene = DamBreak::default();
-    let sim = std::cell::RefCell::new(scene.build(WcsphParams::default()).unwrap());
-    check_w2(
-        "WCSPH",
-        &scene,
-        |t| {
-            let mut s = sim.borrow_mut();
-            s.run_until(t).unwrap();
-            assert!(s.is_finite());
-            s.leaked()
-        },
-        || {
-            let s = sim.borrow();
-            eprintln!("W2 WCSPH: mean density error {:.2e}", s.mean_density_error());
-            WallReport {
-                steps: s.steps(),
-                corrections: s.wall_corrections(),
-                depth_in_dx: s.max_penetration() / s.physics().dx,
-            }
-        },
-    );
+    let mut sim = scene.build(WcsphParams::default()).unwrap();
+    check_w2!("WCSPH", scene, sim, sim.physics().dx);
+    eprintln!("W2 WCSPH: mean density error {:.2e}", sim.mean_density_error());
 }
 
 /// Bar W2 for IISPH (defaults, dx = a/20).
@@ -132,25 +118,8 @@ fn w2_wcsph_no_particle_leaves_the_tank_to_t10() {
 #[ignore = "bar W2: IISPH to T = 10 (release: a few seconds)"]
 fn w2_iisph_no_particle_leaves_the_tank_to_t10() {
     let scene = DamBreak::default();
-    let sim = std::cell::RefCell::new(scene.build_iisph(IisphParams::default()).unwrap());
-    check_w2(
-        "IISPH",
-        &scene,
-        |t| {
-            let mut s = sim.borrow_mut();
-            s.run_until(t).unwrap();
-            assert!(s.is_finite());
-            s.leaked()
-        },
-        || {
-            let s = sim.borrow();
-            WallReport {
-                steps: s.steps(),
-                corrections: s.wall_corrections(),
-                depth_in_dx: s.max_penetration() / s.dx(),
-            }
-        },
-    );
+    let mut sim = scene.build_iisph(IisphParams::default()).unwrap();
+    check_w2!("IISPH", scene, sim, sim.dx());
 }
 
 /// Bar W2 for DFSPH (defaults, dx = a/20).
@@ -158,25 +127,8 @@ fn w2_iisph_no_particle_leaves_the_tank_to_t10() {
 #[ignore = "bar W2: DFSPH to T = 10 (release: a few seconds)"]
 fn w2_dfsph_no_particle_leaves_the_tank_to_t10() {
     let scene = DamBreak::default();
-    let sim = std::cell::RefCell::new(scene.build_dfsph(DfsphParams::default()).unwrap());
-    check_w2(
-        "DFSPH",
-        &scene,
-        |t| {
-            let mut s = sim.borrow_mut();
-            s.run_until(t).unwrap();
-            assert!(s.is_finite());
-            s.leaked()
-        },
-        || {
-            let s = sim.borrow();
-            WallReport {
-                steps: s.steps(),
-                corrections: s.wall_corrections(),
-                depth_in_dx: s.max_penetration() / s.dx(),
-            }
-        },
-    );
+    let mut sim = scene.build_dfsph(DfsphParams::default()).unwrap();
+    check_w2!("DFSPH", scene, sim, sim.dx());
 }
 
 /// The same stencil in 3D (`WallStencil<T, 3>`, used by the 3D WCSPH and DFSPH): two fluid
