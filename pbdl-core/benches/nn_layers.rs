@@ -9,6 +9,13 @@
 //!   ResNet's units): `conv::conv_act` (one op) vs the same inside `nn::with_composed` (conv,
 //!   candle's broadcast add of the bias, fused LeakyReLU: three graph nodes).
 //!
+//! A second group, `nn_small`, times the pieces added for the recurrent and MLP paths:
+//! * `linear` (the 1024-unit LSTM's input projection, x [96, 1024], W [4096, 1024] + bias):
+//!   `nn::linear` vs `with_composed` (candle's `matmul(w.t())` + broadcast add);
+//! * `adamw_step` (40 variables of 128 x 128 x 3 x 3 plus biases, 5.9 M parameters): the
+//!   in-place update vs the composed candle-nn expression;
+//! * `tanh_1m` (a million f32): `vmath::tanh_in_place` vs libm's `tanh` in a loop.
+//!
 //! The backward uses a dense random output gradient (`sum(y * r)`). Run with
 //! `cargo bench -p pbdl-core --bench nn_layers`.
 // criterion's macros generate undocumented functions.
@@ -83,7 +90,68 @@ fn bench(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench);
+fn bench_small(c: &mut Criterion) {
+    let mut g = c.benchmark_group("nn_small");
+    g.sample_size(20).measurement_time(Duration::from_secs(5));
+    let dev = Device::Cpu;
+    let rnd = |shape: &[usize], seed| pbdl_core::seed::randn(shape, 0.0, 0.1, DType::F32, &dev, seed).unwrap();
+    let (x, w, b) = (
+        Var::from_tensor(&rnd(&[96, 1024], 3)).unwrap(),
+        Var::from_tensor(&rnd(&[4096, 1024], 4)).unwrap(),
+        Var::from_tensor(&rnd(&[4096], 5)).unwrap(),
+    );
+    let r = rnd(&[96, 4096], 6);
+    let lin = |t: &[&Tensor]| pbdl_core::nn::linear(t[0], t[1], Some(t[2])).unwrap();
+    g.bench_function("linear/fused", |bch| bch.iter(|| fwd_bwd(&[&x, &w, &b], &r, &lin)));
+    g.bench_function("linear/composed", |bch| {
+        bch.iter(|| pbdl_core::nn::with_composed(|| fwd_bwd(&[&x, &w, &b], &r, &lin)))
+    });
+
+    let vars: Vec<Var> = (0..40)
+        .flat_map(|i| {
+            [
+                Var::from_tensor(&rnd(&[128, 128, 3, 3], 10 + i)).unwrap(),
+                Var::from_tensor(&rnd(&[128], 100 + i)).unwrap(),
+            ]
+        })
+        .collect();
+    let loss = vars.iter().map(|v| v.as_tensor().sqr().unwrap().sum_all().unwrap()).reduce(|a, b| (a + b).unwrap());
+    let grads = loss.unwrap().backward().unwrap();
+    let config = pbdl_core::train::OptimizerConfig::Adam(Default::default());
+    for composed in [false, true] {
+        let mut opt = config.build(vars.clone()).unwrap();
+        let name = if composed { "adamw_step/composed" } else { "adamw_step/in_place" };
+        g.bench_function(name, |bch| {
+            bch.iter(|| {
+                let mut step = || candle_nn::Optimizer::step(&mut opt, &grads).unwrap();
+                if composed {
+                    pbdl_core::nn::with_composed(step)
+                } else {
+                    step()
+                }
+            })
+        });
+    }
+
+    let xs: Vec<f32> = (0..1_000_000).map(|i| (i as f32 - 5e5) * 1e-5).collect();
+    g.bench_function("tanh_1m/vmath", |bch| {
+        bch.iter(|| {
+            let mut v = xs.clone();
+            pbdl_core::vmath::tanh_in_place(&mut v);
+            black_box(v);
+        })
+    });
+    g.bench_function("tanh_1m/libm", |bch| {
+        bch.iter(|| {
+            let mut v = xs.clone();
+            v.iter_mut().for_each(|t| *t = t.tanh());
+            black_box(v);
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench, bench_small);
 fn main() {
     pbdl_core::threads::init().expect("PBDL_THREADS / PBDL_SERIAL_BELOW must be numbers");
     benches();
